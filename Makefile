@@ -1,0 +1,33 @@
+# The two commands of the README: `make demo` and `make test`. Both set up .venv when needed.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.lfd-installed
+# Extra pytest arguments, e.g. `make test PYTEST_ARGS="-m slow"`.
+PYTEST_ARGS ?=
+
+.PHONY: demo test test-all bench clean-venv
+
+$(STAMP): setup.py
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	# torch first, pinned: a CPU build on this machine; nothing may pull a CUDA build afterwards.
+	$(PY) -m pip install --disable-pip-version-check -q torch==2.13.0
+	$(PY) -m pip install --disable-pip-version-check -q -e ".[sim,test]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(PY) -m sim.demo_job
+
+test: $(STAMP)
+	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
+
+test-all: $(STAMP)
+	$(PY) -m pytest -q $(PYTEST_ARGS)
+
+bench: $(STAMP)
+	$(PY) benchmarks/collision.py
+	$(PY) benchmarks/learning.py
+	$(PY) benchmarks/planning.py
+
+clean-venv:
+	rm -rf $(VENV)

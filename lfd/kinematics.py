@@ -1,0 +1,162 @@
+"""Batched forward kinematics of a serial arm, built from any URDF through pytorch-kinematics.
+
+Conventions (written once, used everywhere in lfd):
+
+* poses are homogeneous matrices, ``T_a_b`` maps coordinates in frame ``b`` to
+  frame ``a`` (column vectors): ``p_a = T_a_b @ p_b``;
+* the "world" frame of a kinematic model is the URDF root link's frame;
+* configurations are batch-first, ``q: (B, d)``, joint order as in
+  ``KinematicModel.joint_names``.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import torch
+
+from lfd.robots import BAXTER_LEFT, RobotSpec, resolve_urdf
+
+__all__ = ["KinematicModel", "KinematicsError"]
+
+
+class KinematicsError(ValueError):
+    """A robot description or an input to the kinematics that cannot be used."""
+
+
+def _joint_table(urdf_text: str) -> dict[str, dict]:
+    """Per joint of the URDF: type, lower, upper, velocity (None when absent)."""
+    root = ET.fromstring(urdf_text)
+    table = {}
+    for j in root.iter("joint"):
+        lim = j.find("limit")
+        get = (lambda k: float(lim.get(k)) if lim is not None and lim.get(k) is not None else None)
+        table[j.get("name")] = {"type": j.get("type"), "lower": get("lower"), "upper": get("upper"),
+                                "velocity": get("velocity")}
+    return table
+
+
+class KinematicModel:
+    """Forward kinematics of the chain from the URDF root to ``end_link``.
+
+    Parameters
+    ----------
+    urdf_path : path of the URDF file.
+    end_link : name of the link whose pose ``fk`` returns.
+    joint_names : the controlled joints, in order; checked against the chain.
+        Defaults to the chain's movable joints.
+    dtype, device : of every tensor this object holds and returns.
+
+    Raises
+    ------
+    KinematicsError
+        unknown end link, joints not on the chain, unreadable URDF.
+    """
+
+    def __init__(self, urdf_path: str | Path, end_link: str, joint_names=None,
+                 dtype: torch.dtype = torch.float64, device: str | torch.device = "cpu"):
+        import pytorch_kinematics as pk  # heavy import, kept local to construction
+
+        urdf_path = Path(urdf_path)
+        if not urdf_path.is_file():
+            raise KinematicsError(f"URDF file not found: {urdf_path}")
+        text = urdf_path.read_text(errors="replace")
+        try:
+            joints = _joint_table(text)
+        except ET.ParseError as e:
+            raise KinematicsError(f"cannot parse URDF {urdf_path}: {e}") from e
+        links = {ln.get("name") for ln in ET.fromstring(text).iter("link")}
+        if end_link not in links:
+            raise KinematicsError(f"end link {end_link!r} is not a link of {urdf_path.name}")
+        try:
+            chain = pk.build_serial_chain_from_urdf(text.encode(), end_link)
+        except Exception as e:  # pytorch-kinematics raises bare exceptions for bad chains
+            raise KinematicsError(f"cannot build a chain to {end_link!r} from {urdf_path}: {e}") from e
+        chain_joints = list(chain.get_joint_parameter_names())
+        if joint_names is None:
+            joint_names = chain_joints
+        joint_names = tuple(joint_names)
+        if list(joint_names) != chain_joints:
+            unknown = [n for n in joint_names if n not in joints]
+            if unknown:
+                raise KinematicsError(f"unknown joint name(s) {unknown} in {urdf_path.name}")
+            raise KinematicsError(
+                f"joints {list(joint_names)} are not the movable joints of the chain to "
+                f"{end_link!r}, which are {chain_joints}")
+        self.urdf_path = urdf_path
+        self.end_link = end_link
+        self.joint_names = joint_names
+        self.dtype = dtype
+        self.device = torch.device(device)
+        self._chain = chain.to(dtype=dtype, device=self.device)
+        inf = float("inf")
+        self.lower = torch.tensor([joints[n]["lower"] if joints[n]["lower"] is not None else -inf
+                                   for n in joint_names], dtype=dtype, device=self.device)  # (d,)
+        self.upper = torch.tensor([joints[n]["upper"] if joints[n]["upper"] is not None else inf
+                                   for n in joint_names], dtype=dtype, device=self.device)  # (d,)
+        self.velocity = torch.tensor([joints[n]["velocity"] if joints[n]["velocity"] is not None else inf
+                                      for n in joint_names], dtype=dtype, device=self.device)  # (d,)
+
+    @classmethod
+    def from_spec(cls, spec: RobotSpec = BAXTER_LEFT, dtype: torch.dtype = torch.float64,
+                  device: str | torch.device = "cpu") -> "KinematicModel":
+        """The model of a ``RobotSpec`` (Baxter's left arm by default)."""
+        try:
+            path = resolve_urdf(spec.urdf)
+        except FileNotFoundError as e:
+            raise KinematicsError(str(e)) from e
+        return cls(path, spec.end_link, spec.joint_names, dtype=dtype, device=device)
+
+    @property
+    def dof(self) -> int:
+        return len(self.joint_names)
+
+    def to(self, dtype: torch.dtype | None = None, device=None) -> "KinematicModel":
+        """A copy of this model with another dtype and/or device."""
+        new = object.__new__(KinematicModel)
+        new.__dict__.update(self.__dict__)
+        new.dtype = dtype or self.dtype
+        new.device = torch.device(device) if device is not None else self.device
+        new._chain = self._chain.to(dtype=new.dtype, device=new.device)
+        for k in ("lower", "upper", "velocity"):
+            setattr(new, k, getattr(self, k).to(dtype=new.dtype, device=new.device))
+        return new
+
+    def _check_q(self, q: torch.Tensor) -> torch.Tensor:
+        if not torch.is_tensor(q):
+            q = torch.as_tensor(q, dtype=self.dtype, device=self.device)
+        if q.shape[-1] != self.dof:
+            raise KinematicsError(
+                f"expected configurations with {self.dof} joint values {list(self.joint_names)}, "
+                f"got shape {tuple(q.shape)}")
+        return q.to(dtype=self.dtype, device=self.device)
+
+    def fk(self, q) -> torch.Tensor:
+        """End-link pose ``T_world_ee``.
+
+        ``q: (B, d)`` or ``(d,)`` -> ``(B, 4, 4)`` or ``(4, 4)``; differentiable in ``q``.
+        """
+        q = self._check_q(q)
+        single = q.dim() == 1
+        qb = q.reshape(-1, self.dof)  # (B, d)
+        T_world_ee = self._chain.forward_kinematics(qb).get_matrix()  # (B, 4, 4)
+        if single:
+            return T_world_ee[0]
+        return T_world_ee.reshape(*q.shape[:-1], 4, 4)
+
+    def jacobian(self, q) -> torch.Tensor:
+        """Geometric Jacobian of the end link in the world frame: ``(B, d) -> (B, 6, d)``
+        (rows: linear velocity, then angular velocity)."""
+        q = self._check_q(q).reshape(-1, self.dof)
+        return self._chain.jacobian(q)
+
+    def within_limits(self, q, tol: float = 0.0) -> torch.Tensor:
+        """``(B, d) -> (B,)`` bool: every joint within its URDF limits (+- ``tol``)."""
+        q = self._check_q(q)
+        return ((q >= self.lower - tol) & (q <= self.upper + tol)).all(dim=-1)
+
+    def sample_uniform(self, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+        """``n`` configurations uniform within the joint limits: ``(n, d)``."""
+        u = torch.rand(n, self.dof, generator=generator, dtype=self.dtype, device="cpu").to(self.device)
+        return self.lower + u * (self.upper - self.lower)
