@@ -1,0 +1,76 @@
+"""Task definitions: what a demonstration set is a demonstration *of*.
+
+A ``TaskSpec`` is stored as ``task.json`` beside a set of demonstrations. It carries
+what the paper's baselines need and the learner never infers: the sampling interval,
+the default number of time steps, the hand-picked ("manual") tool point and the
+landmark a human would name as the reference (the bowl).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+__all__ = ["TaskSpec", "POWDER", "POUR", "task_from_name", "TASKS"]
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """A task.
+
+    Attributes
+    ----------
+    name : short name (``powder``, ``pour``).
+    dt : sampling interval of its demonstrations, seconds.
+    time_steps : default number of task-model time steps ``T``.
+    manual_tool_point : the hand-picked tool point, metres, in the end-effector frame
+        (the paper's "manual" tool landmark: the spoon's tip, the pitcher's spout).
+    reference_landmark : the sensed landmark a person would pick (the paper's "manual"
+        environment landmark).
+    """
+
+    name: str
+    dt: float
+    time_steps: int = 24
+    manual_tool_point: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    reference_landmark: str = "bowl"
+
+    def __post_init__(self):
+        if not self.dt > 0:
+            raise ValueError(f"TaskSpec.dt must be positive, got {self.dt}")
+        if int(self.time_steps) < 2:
+            raise ValueError(f"TaskSpec.time_steps must be at least 2, got {self.time_steps}")
+        if len(self.manual_tool_point) != 3:
+            raise ValueError(f"TaskSpec.manual_tool_point needs 3 numbers, got {self.manual_tool_point}")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["manual_tool_point"] = list(self.manual_tool_point)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TaskSpec":
+        return cls(name=str(d["name"]), dt=float(d["dt"]), time_steps=int(d.get("time_steps", 24)),
+                   manual_tool_point=tuple(float(x) for x in d.get("manual_tool_point", (0, 0, 0))),
+                   reference_landmark=str(d.get("reference_landmark", "bowl")))
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+
+    @classmethod
+    def load(cls, path: str | Path) -> "TaskSpec":
+        return cls.from_dict(json.loads(Path(path).read_text()))
+
+
+# The manual tool points match the tool geometry built in sim/assets.py (gripper frame).
+POWDER = TaskSpec(name="powder", dt=0.1, time_steps=24, manual_tool_point=(0.0, 0.0, 0.20))
+POUR = TaskSpec(name="pour", dt=0.02, time_steps=24, manual_tool_point=(0.0, 0.10, 0.12))
+
+TASKS = {t.name: t for t in (POWDER, POUR)}
+
+
+def task_from_name(name: str) -> TaskSpec:
+    if name not in TASKS:
+        raise ValueError(f"unknown task {name!r}; expected one of: {', '.join(TASKS)}")
+    return TASKS[name]
