@@ -69,10 +69,17 @@ class KinematicModel:
         links = {ln.get("name") for ln in ET.fromstring(text).iter("link")}
         if end_link not in links:
             raise KinematicsError(f"end link {end_link!r} is not a link of {urdf_path.name}")
+        from pytorch_kinematics.urdf_parser_py.xml_reflection import core as _xml_core
+
+        # urdf_parser_py prints every tag it does not model (ROS transmissions, Gazebo materials)
+        # to stderr; those are not errors for kinematics, so silence them during the parse only.
+        saved, _xml_core.on_error = _xml_core.on_error, (lambda message: None)
         try:
             chain = pk.build_serial_chain_from_urdf(text.encode(), end_link)
         except Exception as e:  # pytorch-kinematics raises bare exceptions for bad chains
             raise KinematicsError(f"cannot build a chain to {end_link!r} from {urdf_path}: {e}") from e
+        finally:
+            _xml_core.on_error = saved
         chain_joints = list(chain.get_joint_parameter_names())
         if joint_names is None:
             joint_names = chain_joints

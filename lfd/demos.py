@@ -1,0 +1,288 @@
+"""The on-disk format of a demonstration set, and a loader that checks all of it.
+
+Format
+------
+A demonstration set is a folder::
+
+    DIR/
+      <any name>.npz       one file per demonstration, loaded in sorted order
+      task.json            optional: the TaskSpec (lfd.tasks) the set demonstrates
+      ground_truth.json    optional: the hidden truth of a synthetic set (evaluation only)
+
+Each ``.npz`` (``numpy.savez``; no pickled objects) holds:
+
+==================  ==============  ======================================================
+key                 shape / type    meaning
+==================  ==============  ======================================================
+``q``               (S, d) float    joint configurations, radians, one row per sample
+``dt``              () float        sampling interval, seconds (> 0, the same in every file)
+``joint_names``     (d,) str        names of the columns of ``q``, as in the URDF
+``landmark_poses``  (Z, 4, 4) float ``T_world_landmark`` of each sensed landmark (rigid)
+``landmark_names``  (Z,) str        names, the same set and order in every file
+``robot``           () str          JSON of ``lfd.robots.RobotSpec.to_dict()``
+==================  ==============  ======================================================
+
+``world`` is the robot's base (URDF root) frame. See the README for converting a CSV
+of joint angles into this format.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lfd.robots import RobotSpec
+from lfd.se3 import rigid_errors
+from lfd.tasks import TaskSpec
+
+__all__ = ["Demonstration", "DemoSet", "DemoFormatError", "load_demos", "save_demonstration",
+           "save_demos", "REQUIRED_KEYS"]
+
+REQUIRED_KEYS = ("q", "dt", "joint_names", "landmark_poses", "landmark_names", "robot")
+LIMIT_TOLERANCE = 0.02  # rad: recorded joints may sit this far outside the URDF limits
+RIGID_TOLERANCE = 1e-4  # |R^T R - I|, |det R - 1| and bottom-row error allowed in a landmark pose
+
+
+class DemoFormatError(ValueError):
+    """A demonstration set that cannot be used; the message says what, where, and what is expected."""
+
+
+@dataclass(frozen=True)
+class Demonstration:
+    """One demonstration: ``q: (S, d)``, sampling interval ``dt``, landmarks ``(Z, 4, 4)``."""
+
+    q: np.ndarray
+    dt: float
+    landmarks: np.ndarray
+    name: str = ""
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.q.shape[0])
+
+    @property
+    def duration(self) -> float:
+        return (self.n_samples - 1) * self.dt
+
+
+@dataclass(frozen=True)
+class DemoSet:
+    """Demonstrations that share a robot, joints, landmarks and sampling interval."""
+
+    demos: tuple[Demonstration, ...]
+    joint_names: tuple[str, ...]
+    landmark_names: tuple[str, ...]
+    robot: RobotSpec
+    task: TaskSpec | None = None
+    ground_truth: dict | None = None
+    root: Path | None = None
+
+    @property
+    def dt(self) -> float:
+        return self.demos[0].dt
+
+    @property
+    def n_observations(self) -> int:
+        return sum(d.n_samples for d in self.demos)
+
+    def landmark_index(self, name: str) -> int:
+        if name not in self.landmark_names:
+            raise ValueError(f"landmark {name!r} is not among {list(self.landmark_names)}")
+        return self.landmark_names.index(name)
+
+
+def save_demonstration(path: str | Path, demo: Demonstration, joint_names, landmark_names,
+                       robot: RobotSpec) -> Path:
+    """Write one demonstration as an ``.npz`` of the documented format."""
+    path = Path(path)
+    np.savez(path, q=np.asarray(demo.q, dtype=np.float64), dt=np.float64(demo.dt),
+             joint_names=np.array(list(joint_names), dtype=str),
+             landmark_poses=np.asarray(demo.landmarks, dtype=np.float64),
+             landmark_names=np.array(list(landmark_names), dtype=str),
+             robot=np.array(json.dumps(robot.to_dict())))
+    return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
+
+
+def save_demos(out_dir: str | Path, demoset: DemoSet) -> list[Path]:
+    """Write a whole set (``demo_000.npz`` …, ``task.json``, ``ground_truth.json``)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = [save_demonstration(out_dir / f"demo_{i:03d}.npz", d, demoset.joint_names,
+                                demoset.landmark_names, demoset.robot)
+             for i, d in enumerate(demoset.demos)]
+    if demoset.task is not None:
+        demoset.task.save(out_dir / "task.json")
+    if demoset.ground_truth is not None:
+        (out_dir / "ground_truth.json").write_text(json.dumps(demoset.ground_truth, indent=2) + "\n")
+    return paths
+
+
+def _fail(where: str, what: str) -> DemoFormatError:
+    return DemoFormatError(f"{where}: {what}")
+
+
+def _read_npz(path: Path) -> dict:
+    where = str(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in REQUIRED_KEYS if k not in z.files]
+            if missing:
+                raise _fail(where, f"missing key(s) {missing}; a demonstration needs {list(REQUIRED_KEYS)}")
+            return {k: z[k] for k in REQUIRED_KEYS}
+    except DemoFormatError:
+        raise
+    except ValueError as e:  # object arrays need pickle, which is refused
+        raise _fail(where, f"cannot read without pickle ({e}); store names as plain string arrays") from e
+    except (OSError, zipfile.BadZipFile, EOFError, KeyError) as e:
+        raise _fail(where, f"not a readable .npz file ({type(e).__name__}: {e})") from e
+
+
+def _as_float(where: str, key: str, value, ndim: int) -> np.ndarray:
+    if value.dtype.kind not in "fiu":
+        raise _fail(where, f"key {key!r} must be numeric, got dtype {value.dtype}")
+    value = value.astype(np.float64)
+    if value.ndim != ndim:
+        raise _fail(where, f"key {key!r} must have {ndim} dimension(s), got shape {value.shape}")
+    if not np.all(np.isfinite(value)):
+        bad = np.argwhere(~np.isfinite(value))[0].tolist()
+        raise _fail(where, f"key {key!r} holds NaN or infinite values (first at index {bad})")
+    return value
+
+
+def _as_names(where: str, key: str, value) -> tuple[str, ...]:
+    if value.dtype.kind not in "US" or value.ndim != 1:
+        raise _fail(where, f"key {key!r} must be a 1-D array of strings, got dtype {value.dtype} "
+                           f"and shape {value.shape}")
+    names = tuple(str(v) for v in value.tolist())
+    if len(set(names)) != len(names):
+        raise _fail(where, f"key {key!r} repeats a name: {list(names)}")
+    return names
+
+
+def _check_one(path: Path, raw: dict) -> tuple[Demonstration, tuple, tuple, RobotSpec]:
+    where = str(path)
+    try:
+        robot = RobotSpec.from_dict(json.loads(str(raw["robot"])))
+    except (ValueError, TypeError) as e:
+        raise _fail(where, f"key 'robot' must be the JSON of a RobotSpec (name, urdf, end_link, "
+                           f"joint_names): {e}") from e
+    joint_names = _as_names(where, "joint_names", raw["joint_names"])
+    landmark_names = _as_names(where, "landmark_names", raw["landmark_names"])
+    q = _as_float(where, "q", raw["q"], 2)
+    if q.shape[1] != len(joint_names):
+        raise _fail(where, f"key 'q' has {q.shape[1]} columns but 'joint_names' names {len(joint_names)} "
+                           f"joints")
+    dt = _as_float(where, "dt", raw["dt"], 0)
+    if not dt > 0:
+        raise _fail(where, f"key 'dt' (sampling interval) must be positive, got {float(dt)}")
+    poses = _as_float(where, "landmark_poses", raw["landmark_poses"], 3)
+    if poses.shape[1:] != (4, 4) or poses.shape[0] != len(landmark_names):
+        raise _fail(where, f"key 'landmark_poses' must have shape ({len(landmark_names)}, 4, 4) to match "
+                           f"'landmark_names', got {poses.shape}")
+    if poses.shape[0] == 0:
+        raise _fail(where, "no sensed landmarks: 'landmark_poses' is empty")
+    ortho, det, bottom = rigid_errors(poses)
+    bad = np.flatnonzero((ortho > RIGID_TOLERANCE) | (det > RIGID_TOLERANCE) | (bottom > RIGID_TOLERANCE))
+    if bad.size:
+        i = int(bad[0])
+        raise _fail(where, f"landmark {landmark_names[i]!r} pose is not a rigid transform "
+                           f"(|R^T R - I| = {ortho[i]:.2g}, |det R - 1| = {det[i]:.2g}, "
+                           f"bottom row error {bottom[i]:.2g})")
+    demo = Demonstration(q=q, dt=float(dt), landmarks=poses, name=path.stem)
+    return demo, joint_names, landmark_names, robot
+
+
+def _check_limits(where: str, q: np.ndarray, joint_names, lower, upper, tol: float) -> None:
+    below = q < lower - tol
+    above = q > upper + tol
+    if below.any() or above.any():
+        s, j = np.argwhere(below | above)[0]
+        raise _fail(where, f"sample {s}, joint {joint_names[j]!r} = {q[s, j]:.4f} rad is outside its "
+                           f"limits [{lower[j]:.4f}, {upper[j]:.4f}] (tolerance {tol} rad)")
+
+
+def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
+               limit_tolerance: float = LIMIT_TOLERANCE) -> DemoSet:
+    """Load and validate a demonstration set.
+
+    Parameters
+    ----------
+    path : the folder (or a single ``.npz`` file).
+    time_steps : every demonstration must have at least this many samples; defaults to
+        ``task.json``'s ``time_steps`` (or 24 without one).
+    kin : a ``KinematicModel`` for the joint limits; built from the files' robot when None.
+    limit_tolerance : how far (rad) a sample may lie outside the URDF limits.
+
+    Raises
+    ------
+    DemoFormatError
+        naming the file, the demonstration and the key for each problem.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise DemoFormatError(f"{path}: no such demonstration folder or file")
+    if path.is_file():
+        files, root = [path], path.parent
+    else:
+        files, root = sorted(path.glob("*.npz")), path
+    if not files:
+        raise DemoFormatError(f"{path}: no demonstration files (*.npz) in this folder")
+    task = None
+    if (root / "task.json").is_file():
+        try:
+            task = TaskSpec.load(root / "task.json")
+        except (ValueError, KeyError, TypeError) as e:
+            raise DemoFormatError(f"{root / 'task.json'}: not a valid task definition: {e}") from e
+    ground_truth = None
+    if (root / "ground_truth.json").is_file():
+        try:
+            ground_truth = json.loads((root / "ground_truth.json").read_text())
+        except ValueError as e:
+            raise DemoFormatError(f"{root / 'ground_truth.json'}: not valid JSON: {e}") from e
+    if time_steps is None:
+        time_steps = task.time_steps if task is not None else 24
+
+    demos, first = [], None
+    for f in files:
+        demo, joint_names, landmark_names, robot = _check_one(f, _read_npz(f))
+        if first is None:
+            first = (f, joint_names, landmark_names, robot, demo.dt)
+        else:
+            f0, j0, l0, r0, dt0 = first
+            if robot != r0:
+                raise _fail(str(f), f"recorded on robot {robot.to_dict()} but {f0.name} on {r0.to_dict()}")
+            if joint_names != j0:
+                raise _fail(str(f), f"joint_names {list(joint_names)} differ from {f0.name}'s {list(j0)}")
+            if landmark_names != l0:
+                raise _fail(str(f), f"landmark_names {list(landmark_names)} (Z={len(landmark_names)}) differ "
+                                    f"from {f0.name}'s {list(l0)} (Z={len(l0)})")
+            if abs(demo.dt - dt0) > 1e-9 * max(1.0, dt0):
+                raise _fail(str(f), f"sampling interval dt={demo.dt} differs from {f0.name}'s dt={dt0}")
+        if demo.n_samples < time_steps:
+            raise _fail(str(f), f"only {demo.n_samples} samples, fewer than the {time_steps} time steps of "
+                                f"the task model")
+        demos.append(demo)
+
+    _, joint_names, landmark_names, robot, _ = first
+    unknown = [n for n in joint_names if n not in robot.joint_names]
+    if unknown:
+        raise _fail(str(files[0]), f"unknown joint name(s) {unknown}; robot {robot.name!r} has "
+                                   f"{list(robot.joint_names)}")
+    if joint_names != robot.joint_names:
+        raise _fail(str(files[0]), f"joint_names must be {list(robot.joint_names)} in this order, got "
+                                   f"{list(joint_names)}")
+    if kin is None:
+        from lfd.kinematics import KinematicModel, KinematicsError
+        try:
+            kin = KinematicModel.from_spec(robot)
+        except KinematicsError as e:
+            raise DemoFormatError(f"{files[0]}: robot {robot.name!r} cannot be loaded: {e}") from e
+    lower, upper = kin.lower.cpu().numpy(), kin.upper.cpu().numpy()
+    for f, d in zip(files, demos):
+        _check_limits(str(f), d.q, joint_names, lower, upper, limit_tolerance)
+    return DemoSet(demos=tuple(demos), joint_names=joint_names, landmark_names=landmark_names,
+                   robot=robot, task=task, ground_truth=ground_truth, root=root)
