@@ -127,6 +127,8 @@ def _fail(where: str, what: str) -> DemoFormatError:
 
 def _read_npz(path: Path) -> dict:
     where = str(path)
+    if not zipfile.is_zipfile(path):
+        raise _fail(where, "not a readable .npz file (not a zip archive as numpy.savez writes)")
     try:
         with np.load(path, allow_pickle=False) as z:
             missing = [k for k in REQUIRED_KEYS if k not in z.files]
@@ -286,3 +288,27 @@ def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
         _check_limits(str(f), d.q, joint_names, lower, upper, limit_tolerance)
     return DemoSet(demos=tuple(demos), joint_names=joint_names, landmark_names=landmark_names,
                    robot=robot, task=task, ground_truth=ground_truth, root=root)
+
+
+def _main(argv=None) -> int:
+    """``python -m lfd.demos DIR``: validate a demonstration set and summarise it."""
+    from lfd.cli import ArgumentParser
+
+    parser = ArgumentParser(prog="python -m lfd.demos", description=_main.__doc__)
+    parser.add_argument("path", help="folder of .npz demonstrations (or one .npz file)")
+    parser.add_argument("--time-steps", type=int, default=None,
+                        help="minimum samples per demonstration (default: task.json's, or 24)")
+    args = parser.parse_args(argv)
+    ds = load_demos(args.path, time_steps=args.time_steps)
+    lengths = [d.n_samples for d in ds.demos]
+    print(f"{len(ds.demos)} demonstrations of {ds.task.name if ds.task else 'an unnamed task'} on "
+          f"{ds.robot.name}: {ds.n_observations} observations (per demonstration {min(lengths)}-"
+          f"{max(lengths)}), dt={ds.dt:g} s, landmarks {list(ds.landmark_names)}")
+    return 0
+
+
+if __name__ == "__main__":
+    from lfd.cli import run_main
+    from lfd.demos import _main as main  # the package's module, whose error classes run_main knows
+
+    run_main(main, prog="python -m lfd.demos")

@@ -1,0 +1,74 @@
+"""What every command-line entry point shares: one-line errors and exit status 2 for bad input.
+
+Bad input (a broken demonstration file, an unknown option value, a folder that cannot be
+written, a model that is not ours) is the user's to fix, so it gets one line on stderr that
+names the problem and exit status 2 — never a traceback. Anything else is a bug and keeps its
+traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+__all__ = ["UsageError", "ArgumentParser", "run_main", "writable_dir", "USER_ERRORS"]
+
+
+class UsageError(ValueError):
+    """Bad input that the user can fix; the message says what and what would be right."""
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    from lfd.demos import DemoFormatError
+    from lfd.kinematics import KinematicsError
+    errors: list[type[BaseException]] = [UsageError, DemoFormatError, KinematicsError,
+                                         FileNotFoundError, NotADirectoryError, PermissionError]
+    try:
+        from lfd.model import ModelFormatError
+        errors.append(ModelFormatError)
+    except ImportError:
+        pass
+    return tuple(errors)
+
+
+USER_ERRORS = _user_errors
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """An ``argparse`` parser whose errors are one line (no usage dump) and exit status 2."""
+
+    def error(self, message: str):  # noqa: D401 - argparse's hook
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def writable_dir(path: str | Path, what: str = "--out") -> Path:
+    """Create ``path`` if needed and check it can be written; ``UsageError`` otherwise."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except (OSError, FileExistsError) as e:
+        raise UsageError(f"{what} {path}: cannot create this folder ({e.strerror or e})") from e
+    if not path.is_dir():
+        raise UsageError(f"{what} {path}: exists and is not a folder")
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise UsageError(f"{what} {path}: folder is not writable")
+    return path
+
+
+def run_main(main, argv=None, prog: str | None = None) -> None:
+    """Run ``main(argv) -> int | None`` and exit; user errors become one line and status 2."""
+    prog = prog or Path(sys.argv[0]).name
+    try:
+        code = main(argv)
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        sys.exit(130)
+    except USER_ERRORS() as e:
+        msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        if isinstance(e, OSError) and e.filename and str(e.filename) not in msg:
+            msg = f"{e.filename}: {msg}"
+        print(f"{prog}: error: {msg}", file=sys.stderr)
+        sys.exit(2)
+    sys.exit(int(code or 0))

@@ -1,0 +1,177 @@
+"""The demonstration format: round trip, and every kind of broken file refused with its own message."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from lfd.demos import DemoFormatError, Demonstration, DemoSet, load_demos, save_demos
+from lfd.robots import BAXTER_LEFT
+from lfd.tasks import POWDER
+
+ROOT = Path(__file__).resolve().parent.parent
+NAMES = ("bowl", "marker_1", "marker_2")
+
+
+def _demoset(n=2, samples=30, seed=0) -> DemoSet:
+    rng = np.random.default_rng(seed)
+    demos = []
+    for i in range(n):
+        poses = np.tile(np.eye(4), (len(NAMES), 1, 1))
+        poses[:, :3, 3] = rng.uniform(-0.5, 0.5, (len(NAMES), 3))
+        q = np.array([0.0, -0.5, 0.0, 1.2, 0.0, 0.5, 0.0]) + 0.1 * rng.standard_normal((samples + i, 7))
+        demos.append(Demonstration(q=q, dt=0.1, landmarks=poses, name=f"demo_{i:03d}"))
+    return DemoSet(demos=tuple(demos), joint_names=BAXTER_LEFT.joint_names, landmark_names=NAMES,
+                   robot=BAXTER_LEFT, task=POWDER, ground_truth={"tool_point": [0, 0, 0.1]})
+
+
+@pytest.fixture(scope="module")
+def kin():
+    from lfd.kinematics import KinematicModel
+    return KinematicModel.from_spec()
+
+
+@pytest.fixture()
+def good_dir(tmp_path):
+    save_demos(tmp_path, _demoset())
+    return tmp_path
+
+
+def _rewrite(path: Path, **changes):
+    """Rewrite one npz with keys changed (None deletes the key)."""
+    with np.load(path, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    for k, v in changes.items():
+        if v is None:
+            data.pop(k, None)
+        else:
+            data[k] = v
+    path.unlink()
+    np.savez(path, **data)
+
+
+def test_round_trip(good_dir, kin):
+    ds = _demoset()
+    loaded = load_demos(good_dir, kin=kin)
+    assert loaded.landmark_names == NAMES
+    assert loaded.joint_names == BAXTER_LEFT.joint_names
+    assert loaded.task == POWDER
+    assert loaded.ground_truth == {"tool_point": [0, 0, 0.1]}
+    assert len(loaded.demos) == 2
+    for a, b in zip(ds.demos, loaded.demos):
+        np.testing.assert_array_equal(a.q, b.q)
+        np.testing.assert_array_equal(a.landmarks, b.landmarks)
+        assert a.dt == b.dt
+
+
+def _bad_pose():
+    T = np.tile(np.eye(4), (3, 1, 1))
+    T[1, :3, :3] *= 1.5
+    return T
+
+
+# (id, changes to demo_001.npz, expected message fragment)
+BROKEN = [
+    ("missing-q", {"q": None}, r"missing key\(s\) \['q'\]"),
+    ("missing-landmarks", {"landmark_poses": None}, r"missing key\(s\) \['landmark_poses'\]"),
+    ("q-1d", {"q": np.zeros(7)}, r"'q' must have 2 dimension"),
+    ("q-columns", {"q": np.zeros((30, 6))}, r"'q' has 6 columns"),
+    ("q-nan", {"q": np.full((30, 7), np.nan)}, r"'q' holds NaN"),
+    ("q-inf", {"q": np.where(np.eye(30, 7) > 0, np.inf, 0.0)}, r"'q' holds NaN or infinite"),
+    ("q-strings", {"q": np.array(["a"] * 7)}, r"'q' must be numeric"),
+    ("q-limits", {"q": np.full((30, 7), 2.9)}, r"outside its limits"),
+    ("too-short", {"q": np.zeros((5, 7))}, r"only 5 samples, fewer than the 24 time steps"),
+    ("dt-zero", {"dt": np.float64(0.0)}, r"'dt' \(sampling interval\) must be positive"),
+    ("dt-negative", {"dt": np.float64(-0.1)}, r"must be positive"),
+    ("dt-differs", {"dt": np.float64(0.05)}, r"sampling interval dt=0.05 differs"),
+    ("pose-shape", {"landmark_poses": np.zeros((3, 3, 4))}, r"must have shape \(3, 4, 4\)"),
+    ("pose-count", {"landmark_poses": np.tile(np.eye(4), (2, 1, 1))}, r"must have shape \(3, 4, 4\)"),
+    ("pose-not-rigid", {"landmark_poses": _bad_pose()}, r"'marker_1' pose is not a rigid transform"),
+    ("pose-nan", {"landmark_poses": np.full((3, 4, 4), np.nan)}, r"'landmark_poses' holds NaN"),
+    ("landmark-names", {"landmark_names": np.array(["bowl", "marker_1", "vase"])}, r"landmark_names .* differ"),
+    ("landmark-dup", {"landmark_names": np.array(["bowl", "bowl", "vase"])}, r"repeats a name"),
+    ("joint-order", {"joint_names": np.array(list(reversed(BAXTER_LEFT.joint_names)))}, r"joint_names .* differ"),
+    ("robot-json", {"robot": np.array("not json")}, r"'robot' must be the JSON of a RobotSpec"),
+    ("robot-differs", {"robot": np.array(json.dumps({**BAXTER_LEFT.to_dict(), "end_link": "left_hand"}))},
+     r"recorded on robot"),
+    ("names-object", {"landmark_names": np.array(["bowl", 1, None], dtype=object)}, r"cannot read without pickle"),
+]
+
+
+@pytest.mark.parametrize("changes,match", [b[1:] for b in BROKEN], ids=[b[0] for b in BROKEN])
+def test_broken_file_refused(good_dir, kin, changes, match):
+    _rewrite(good_dir / "demo_001.npz", **changes)
+    with pytest.raises(DemoFormatError, match=match) as info:
+        load_demos(good_dir, kin=kin)
+    assert "demo_00" in str(info.value)  # the message names the file
+
+
+def test_unknown_joint_name(tmp_path, kin):
+    ds = _demoset()
+    bad = [*BAXTER_LEFT.joint_names[:-1], "left_w9"]
+    for i, d in enumerate(ds.demos):
+        from lfd.demos import save_demonstration
+        save_demonstration(tmp_path / f"d{i}.npz", d, bad, NAMES, BAXTER_LEFT)
+    with pytest.raises(DemoFormatError, match=r"unknown joint name\(s\) \['left_w9'\]"):
+        load_demos(tmp_path, kin=kin)
+
+
+def test_not_a_zip_and_empty_folder(tmp_path, kin):
+    with pytest.raises(DemoFormatError, match="no demonstration files"):
+        load_demos(tmp_path, kin=kin)
+    (tmp_path / "x.npz").write_bytes(b"this is not a zip file")
+    with pytest.raises(DemoFormatError, match="not a readable .npz file"):
+        load_demos(tmp_path, kin=kin)
+    with pytest.raises(DemoFormatError, match="no such demonstration folder"):
+        load_demos(tmp_path / "absent", kin=kin)
+
+
+def test_cli_one_line_exit_2(good_dir):
+    _rewrite(good_dir / "demo_001.npz", dt=np.float64(-1.0))
+    r = subprocess.run([sys.executable, "-m", "lfd.demos", str(good_dir)], capture_output=True, text=True,
+                       cwd=ROOT, timeout=120)
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert "must be positive" in r.stderr
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_random_corruption_loaded_or_refused(tmp_path_factory, kin, data):
+    """Random byte-level and value-level corruptions: loaded correctly, or refused with DemoFormatError."""
+    d = tmp_path_factory.mktemp("corrupt")
+    save_demos(d, _demoset())
+    target = d / "demo_000.npz"
+    mode = data.draw(st.sampled_from(["bytes", "truncate", "value"]))
+    if mode == "bytes":
+        raw = bytearray(target.read_bytes())
+        for _ in range(data.draw(st.integers(1, 20))):
+            i = data.draw(st.integers(0, len(raw) - 1))
+            raw[i] = data.draw(st.integers(0, 255))
+        target.write_bytes(bytes(raw))
+    elif mode == "truncate":
+        raw = target.read_bytes()
+        target.write_bytes(raw[: data.draw(st.integers(0, len(raw) - 1))])
+    else:
+        key = data.draw(st.sampled_from(["q", "dt", "landmark_poses"]))
+        with np.load(target) as z:
+            arr = z[key].astype(np.float64).copy()
+        flat = arr.reshape(-1)
+        i = data.draw(st.integers(0, flat.size - 1))
+        flat[i] = data.draw(st.floats(allow_nan=True, allow_infinity=True))
+        _rewrite(target, **{key: arr})
+    try:
+        ds = load_demos(d, kin=kin)
+    except DemoFormatError:
+        return
+    for demo in ds.demos:  # whatever loads is valid
+        assert np.all(np.isfinite(demo.q)) and np.all(np.isfinite(demo.landmarks))
+        assert demo.dt > 0 and demo.q.shape[1] == 7
