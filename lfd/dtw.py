@@ -1,0 +1,138 @@
+"""The E-step: dynamic time warping of demonstrations onto the model's time steps (Sec. IV-B).
+
+Value recursion (costs in Eq. 3 units, 0-based steps here, 1-based in the paper)::
+
+    l^0[t'] = c(0, t') if t' == 0 else inf            (alignments start at the first step)
+    l^s[t'] = min_k (l^{s-1}[t' - o_k] + C_trans[t' - o_k, k]) + c(s, t')
+
+and every alignment ends at the last step ``T - 1``. ``o_k`` are the permitted offsets
+(``(0, 1, 2)`` by default) and ``C_trans = -2 log p(t + o_k | t)``. The loop runs over samples
+only; time steps and demonstrations are vectorized (demonstrations padded to one length,
+finished ones keep their value).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+__all__ = ["dtw_align", "min_samples", "random_alignment", "alignment_step_counts"]
+
+
+def min_samples(time_steps: int, offsets=(0, 1, 2)) -> int:
+    """Fewest samples that can run from the first to the last step."""
+    step = max(offsets)
+    return 1 + -(-(time_steps - 1) // step)
+
+
+def dtw_align(cost: torch.Tensor, lengths, trans_cost: torch.Tensor, offsets=(0, 1, 2)):
+    """Best alignment of each demonstration.
+
+    Parameters
+    ----------
+    cost : (M, S_max, T) observation costs ``c(s, t)``; entries past a demonstration's
+        length are ignored.
+    lengths : (M,) number of samples of each demonstration.
+    trans_cost : (T, K) cost of moving from step ``t`` by ``offsets[k]`` (``inf`` = forbidden).
+    offsets : the permitted offsets, non-negative and distinct.
+
+    Returns
+    -------
+    alignments : list of M int64 numpy arrays ``(S_m,)``, 0-based steps, from 0 to T - 1.
+    values : (M,) tensor, the total cost of each best alignment.
+
+    Raises
+    ------
+    ValueError
+        a demonstration too short to reach the last step.
+    """
+    M, S, T = cost.shape
+    lengths = [int(n) for n in lengths]
+    offsets = tuple(int(k) for k in offsets)
+    K, kmax = len(offsets), max(offsets)
+    if trans_cost.shape != (T, K):
+        raise ValueError(f"trans_cost must have shape ({T}, {K}), got {tuple(trans_cost.shape)}")
+    too_short = [m for m, n in enumerate(lengths) if n < min_samples(T, offsets)]
+    if too_short:
+        raise ValueError(f"demonstration(s) {too_short} have fewer than {min_samples(T, offsets)} samples "
+                         f"needed to reach time step {T} with offsets {offsets}")
+    dev, dt = cost.device, cost.dtype
+    inf = torch.tensor(float("inf"), dtype=dt, device=dev)
+    tprime = torch.arange(T, device=dev)
+    off = torch.tensor(offsets, device=dev)
+    src = tprime[:, None] - off[None, :]  # (T, K) predecessor step
+    valid = src >= 0
+    # shifted transition cost: arriving at t' via offset k costs trans_cost[t' - o_k, k]
+    tc = torch.where(valid, trans_cost[src.clamp(min=0), torch.arange(K, device=dev)[None, :]], inf)
+    gather = (src + kmax).clamp(min=0)  # index into l padded with kmax infs on the left
+
+    lengths_t = torch.tensor(lengths, device=dev)
+    value = torch.full((M, T), float("inf"), dtype=dt, device=dev)
+    value[:, 0] = cost[:, 0, 0]
+    pad = torch.full((M, kmax), float("inf"), dtype=dt, device=dev)
+    args = torch.zeros((S, M, T), dtype=torch.int8, device=dev)
+    for s in range(1, S):
+        lp = torch.cat([pad, value], dim=1)  # (M, kmax + T)
+        cand = lp[:, gather] + tc  # (M, T, K)
+        best, arg = cand.min(dim=2)
+        new = best + cost[:, s, :]
+        active = (lengths_t > s)[:, None]
+        value = torch.where(active, new, value)
+        args[s] = arg.to(torch.int8)
+    values = value[:, T - 1]
+    if not torch.isfinite(values).all():
+        bad = torch.nonzero(~torch.isfinite(values)).flatten().tolist()
+        raise ValueError(f"no finite alignment for demonstration(s) {bad} (non-finite costs?)")
+
+    args_np = args.cpu().numpy()
+    off_np = np.asarray(offsets)
+    lens = np.asarray(lengths)
+    t = np.full(M, T - 1, dtype=np.int64)
+    out = np.zeros((M, S), dtype=np.int64)
+    rows = np.arange(M)
+    for s in range(S - 1, 0, -1):
+        act = lens > s
+        out[act, s] = t[act]
+        k = args_np[s, rows, t]
+        t = np.where(act, t - off_np[k], t)
+    out[:, 0] = t
+    if (t != 0).any():  # cannot happen with finite values; kept as an internal check
+        raise RuntimeError("DTW backtracking did not end at the first step")
+    return [out[m, :lengths[m]].copy() for m in range(M)], values
+
+
+def random_alignment(n_samples: int, time_steps: int, rng: np.random.Generator,
+                     offsets=(0, 1, 2)) -> np.ndarray:
+    """A random monotone alignment ``(n_samples,)`` from step 0 to ``time_steps - 1``.
+
+    Steps advance at ``time_steps - 1`` of the ``n_samples - 1`` transitions, drawn without
+    replacement with probabilities from a random smooth warp (so pace varies along the
+    demonstration); offsets stay in ``{0, 1}`` and are hence permitted whenever 0 and 1 are.
+    When there are fewer samples than steps, offsets of 2 are used as needed.
+    """
+    n_trans = n_samples - 1
+    need = time_steps - 1
+    if n_trans >= need:
+        knots = rng.gamma(2.0, size=6)
+        rate = np.interp(np.linspace(0, 5, n_trans), np.arange(6), knots) + 0.2
+        chosen = rng.choice(n_trans, size=need, replace=False, p=rate / rate.sum())
+        inc = np.zeros(n_trans, dtype=np.int64)
+        inc[chosen] = 1
+    else:
+        if max(offsets) * n_trans < need:
+            raise ValueError(f"{n_samples} samples cannot reach step {time_steps} with offsets {offsets}")
+        inc = np.ones(n_trans, dtype=np.int64)
+        extra = rng.choice(n_trans, size=need - n_trans, replace=False)
+        inc[extra] += 1
+    return np.concatenate([[0], np.cumsum(inc)])
+
+
+def alignment_step_counts(alignments, time_steps: int, offsets=(0, 1, 2)) -> np.ndarray:
+    """``(T, K)`` counts of transitions from each step by each offset."""
+    counts = np.zeros((time_steps, len(offsets)))
+    index = {int(k): i for i, k in enumerate(offsets)}
+    for a in alignments:
+        d = np.diff(a)
+        for k, i in index.items():
+            np.add.at(counts[:, i], a[:-1][d == k], 1)
+    return counts

@@ -1,0 +1,284 @@
+"""The learned task model: virtual landmarks (zeta), per-step Gaussians (eta), transitions.
+
+Notation follows the paper (Sec. III-IV). Conventions written once here:
+
+* ``F = d + 3`` features per configuration (Eq. 2): the ``d`` joint angles, then the tool
+  point ``zeta_tool`` (end-effector frame, metres) expressed in the environmental virtual
+  landmark frame: ``x = K_virt^-1 @ T_world_ee @ [tool; 1]``.
+* ``K_virt^-1 = sum_i env_i * inv(T_world_landmark_i)`` (a 4x4 affine map, rigid only when
+  the landmark rotations agree); ``sum(env) == 1``.
+* **Eq. 3 units.** Every cost in lfd's learning and planning is in the units of Eq. 3:
+  ``L(q | zeta, eta_t, a) = s * log|Sigma_t| + |sigma_inv_t (f - mu_t)|^2``, i.e. twice the
+  Gaussian negative log-likelihood minus the constant ``F log(2 pi)`` (``s`` = ``logdet_scale``,
+  1 by default, which makes it exactly that). Transition costs in the same units are
+  ``-2 * log p(t'|t)`` (``TaskModel.trans_cost``); ``log_trans`` itself is the natural log.
+* ``sigma_inv_t`` is the inverse of the lower Cholesky factor of ``Sigma_t``
+  (``Sigma = sigma sigma^T``), lower-triangular with a positive diagonal, so
+  ``log|Sigma| = -2 sum log diag(sigma_inv)``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+
+from lfd.robots import RobotSpec
+from lfd.tasks import TaskSpec
+
+__all__ = ["TaskModel", "ModelFormatError", "COVARIANCES", "OFFSETS", "FORMAT",
+           "landmarks_inverse_tensor", "virtual_inverse_tensor", "features_tensor",
+           "logdet_tensor", "step_nll_tensor", "aligned_nll_tensor"]
+
+COVARIANCES = ("full", "block")
+OFFSETS = (0, 1, 2)
+FORMAT = "lfd-task-model/1"
+
+
+class ModelFormatError(ValueError):
+    """A model folder that is not an lfd task model (or a damaged one)."""
+
+
+# ----------------------------------------------------------------------------- kernels
+def landmarks_inverse_tensor(T_world_landmark: torch.Tensor) -> torch.Tensor:
+    """``(..., Z, 4, 4) -> T_landmark_world (..., Z, 4, 4)`` for rigid transforms."""
+    R = T_world_landmark[..., :3, :3]
+    Rt = R.transpose(-1, -2)
+    t = -(Rt @ T_world_landmark[..., :3, 3:4])
+    top = torch.cat([Rt, t], dim=-1)  # (..., 3, 4)
+    bottom = torch.zeros_like(T_world_landmark[..., 3:4, :])
+    bottom[..., 0, 3] = 1
+    return torch.cat([top, bottom], dim=-2)
+
+
+def virtual_inverse_tensor(env: torch.Tensor, T_landmark_world: torch.Tensor) -> torch.Tensor:
+    """``K_virt^-1 = sum_i env_i T_landmark_i_world``: env ``(Z,)``, ``(M, Z, 4, 4) -> (M, 4, 4)``."""
+    return torch.einsum("z,mzij->mij", env, T_landmark_world)
+
+
+def features_tensor(q: torch.Tensor, T_world_ee: torch.Tensor, tool: torch.Tensor,
+                    K_virt_inv: torch.Tensor) -> torch.Tensor:
+    """Eq. 2. ``q (N, d)``, ``T_world_ee (N, 4, 4)``, ``tool (3,)``, ``K_virt_inv (N, 4, 4)`` or
+    ``(4, 4)`` -> ``f (N, d + 3)``."""
+    p_world = T_world_ee[:, :3, :3] @ tool + T_world_ee[:, :3, 3]  # (N, 3)
+    if K_virt_inv.dim() == 2:
+        x = p_world @ K_virt_inv[:3, :3].T + K_virt_inv[:3, 3]  # (N, 3)
+    else:
+        x = torch.einsum("nij,nj->ni", K_virt_inv[:, :3, :3], p_world) + K_virt_inv[:, :3, 3]
+    return torch.cat([q, x], dim=-1)
+
+
+def logdet_tensor(sigma_inv: torch.Tensor) -> torch.Tensor:
+    """``log|Sigma|`` from ``sigma_inv (..., F, F)`` -> ``(...)``."""
+    return -2.0 * torch.log(torch.diagonal(sigma_inv, dim1=-2, dim2=-1)).sum(-1)
+
+
+def step_nll_tensor(f: torch.Tensor, mu: torch.Tensor, sigma_inv: torch.Tensor,
+                    logdet_scale: float = 1.0) -> torch.Tensor:
+    """Eq. 3 for every observation and every step: ``f (N, F)``, ``mu (T, F)``,
+    ``sigma_inv (T, F, F)`` -> ``(N, T)`` in Eq. 3 units."""
+    diff = f[:, None, :] - mu[None, :, :]  # (N, T, F)
+    r = torch.einsum("tij,ntj->nti", sigma_inv, diff)  # (N, T, F)
+    return logdet_scale * logdet_tensor(sigma_inv)[None, :] + (r * r).sum(-1)
+
+
+def aligned_nll_tensor(f: torch.Tensor, t_idx: torch.Tensor, mu: torch.Tensor,
+                       sigma_inv: torch.Tensor, logdet_scale: float = 1.0) -> torch.Tensor:
+    """Eq. 3 of each observation at its own step ``t_idx (N,)`` (0-based) -> ``(N,)``."""
+    diff = f - mu[t_idx]  # (N, F)
+    r = torch.einsum("nij,nj->ni", sigma_inv[t_idx], diff)
+    return logdet_scale * logdet_tensor(sigma_inv)[t_idx] + (r * r).sum(-1)
+
+
+# ----------------------------------------------------------------------------- the model
+class TaskModel:
+    """A learned task model (plain container of tensors; one dtype/device).
+
+    Attributes
+    ----------
+    tool : (3,) tool point ``zeta_tool`` in the end-effector frame, metres.
+    env : (Z,) weights of the kept landmarks, summing to 1.
+    mu : (T, F) per-step feature means.
+    sigma_inv : (T, F, F) per-step inverse lower Cholesky factors.
+    log_trans : (T, K) ``log p(t + offsets[k] | t)`` (natural log; ``-inf`` where not permitted).
+    landmark_names : the kept landmarks, the order of ``env`` and of ``step_nll``'s landmarks.
+    all_landmark_names : every landmark of the demonstrations before pruning.
+    robot, task : where the model comes from (``task`` may be None).
+    options : dict of how it was learned (covariance, tool/env modes, logdet_scale, ...).
+    """
+
+    _TENSORS = ("tool", "env", "mu", "sigma_inv", "log_trans")
+
+    def __init__(self, tool, env, mu, sigma_inv, log_trans, landmark_names, robot: RobotSpec,
+                 task: TaskSpec | None = None, all_landmark_names=None, offsets=OFFSETS,
+                 covariance: str = "full", logdet_scale: float = 1.0, options: dict | None = None,
+                 kin=None):
+        self.tool, self.env, self.mu = tool, env, mu
+        self.sigma_inv, self.log_trans = sigma_inv, log_trans
+        self.landmark_names = tuple(landmark_names)
+        self.all_landmark_names = tuple(all_landmark_names or landmark_names)
+        self.robot, self.task = robot, task
+        self.offsets = tuple(int(k) for k in offsets)
+        if covariance not in COVARIANCES:
+            raise ValueError(f"covariance must be one of {COVARIANCES}, got {covariance!r}")
+        self.covariance = covariance
+        self.logdet_scale = float(logdet_scale)
+        self.options = dict(options or {})
+        self._kin = kin
+        T, F = mu.shape
+        d = len(robot.joint_names)
+        for name, shape in (("tool", (3,)), ("env", (len(self.landmark_names),)), ("mu", (T, d + 3)),
+                            ("sigma_inv", (T, F, F)), ("log_trans", (T, len(self.offsets)))):
+            got = tuple(getattr(self, name).shape)
+            if got != shape:
+                raise ValueError(f"TaskModel.{name} must have shape {shape}, got {got}")
+
+    # -- basic properties
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.mu.dtype
+
+    @property
+    def device(self) -> torch.device:
+        return self.mu.device
+
+    @property
+    def time_steps(self) -> int:
+        return int(self.mu.shape[0])
+
+    @property
+    def n_features(self) -> int:
+        return int(self.mu.shape[1])
+
+    @property
+    def trans_cost(self) -> torch.Tensor:
+        """``(T, K)`` transition costs in Eq. 3 units: ``-2 log p(t + offsets[k] | t)``."""
+        return -2.0 * self.log_trans
+
+    @property
+    def covariances(self) -> torch.Tensor:
+        """``Sigma_t = (sigma_inv^T sigma_inv)^-1``: ``(T, F, F)``."""
+        sigma = torch.linalg.inv(self.sigma_inv)
+        return sigma @ sigma.transpose(-1, -2)
+
+    @property
+    def kin(self):
+        """The ``KinematicModel`` used when ``step_nll`` gets no poses (built on first use)."""
+        if self._kin is None:
+            from lfd.kinematics import KinematicModel
+            self._kin = KinematicModel.from_spec(self.robot, dtype=self.dtype, device=self.device)
+        return self._kin
+
+    @kin.setter
+    def kin(self, value):
+        self._kin = value
+
+    def to(self, dtype: torch.dtype | None = None, device=None) -> "TaskModel":
+        """A copy with another dtype and/or device (the kinematic model follows)."""
+        new = object.__new__(TaskModel)
+        new.__dict__.update(self.__dict__)
+        for k in self._TENSORS:
+            setattr(new, k, getattr(self, k).to(dtype=dtype or self.dtype, device=device or self.device))
+        new._kin = self._kin.to(dtype, device) if self._kin is not None else None
+        return new
+
+    # -- evaluation
+    def select_landmarks(self, names, T_world_landmark) -> torch.Tensor:
+        """Pick the kept landmarks by name out of a sensed set ``(Z_all, 4, 4)`` -> ``(Z, 4, 4)``."""
+        names = list(names)
+        missing = [n for n in self.landmark_names if n not in names]
+        if missing:
+            raise ValueError(f"the task needs landmark(s) {missing}; sensed: {names}")
+        T = torch.as_tensor(T_world_landmark, dtype=self.dtype, device=self.device)
+        return T[[names.index(n) for n in self.landmark_names]]
+
+    def _landmarks(self, landmarks) -> torch.Tensor:
+        T = torch.as_tensor(landmarks, dtype=self.dtype, device=self.device)
+        if T.shape != (len(self.landmark_names), 4, 4):
+            raise ValueError(f"landmarks must have shape ({len(self.landmark_names)}, 4, 4) for "
+                             f"{list(self.landmark_names)}, got {tuple(T.shape)} "
+                             f"(use select_landmarks to pick them by name)")
+        return T
+
+    def K_virt_inv(self, landmarks) -> torch.Tensor:
+        """``K_virt^-1 (4, 4)`` for sensed landmarks ``(Z, 4, 4)`` (kept ones, model order)."""
+        return virtual_inverse_tensor(self.env, landmarks_inverse_tensor(self._landmarks(landmarks))[None])[0]
+
+    def features(self, q, T_world_ee=None, landmarks=None) -> torch.Tensor:
+        """Eq. 2: ``q (B, d)`` -> ``f (B, F)``; FK computed when ``T_world_ee`` is None."""
+        q = torch.as_tensor(q, dtype=self.dtype, device=self.device)
+        if q.dim() != 2 or q.shape[1] != self.n_features - 3:
+            raise ValueError(f"q must have shape (B, {self.n_features - 3}), got {tuple(q.shape)}")
+        if T_world_ee is None:
+            T_world_ee = self.kin.fk(q)
+        T_world_ee = torch.as_tensor(T_world_ee, dtype=self.dtype, device=self.device)
+        return features_tensor(q, T_world_ee, self.tool, self.K_virt_inv(landmarks))
+
+    def step_nll(self, q, T_world_ee=None, landmarks=None) -> torch.Tensor:
+        """The planner's cost ``(B, d) -> (B, T)``, Eq. 3 units (``s log|Sigma_t| + Mahalanobis^2``).
+
+        ``landmarks``: ``(Z, 4, 4)`` poses of the kept landmarks in ``landmark_names`` order.
+        """
+        f = self.features(q, T_world_ee, landmarks)
+        return step_nll_tensor(f, self.mu, self.sigma_inv, self.logdet_scale)
+
+    # -- persistence
+    def config_dict(self) -> dict:
+        return {"format": FORMAT, "robot": self.robot.to_dict(),
+                "task": self.task.to_dict() if self.task is not None else None,
+                "landmark_names": list(self.landmark_names),
+                "all_landmark_names": list(self.all_landmark_names),
+                "time_steps": self.time_steps, "n_features": self.n_features,
+                "offsets": list(self.offsets), "covariance": self.covariance,
+                "logdet_scale": self.logdet_scale, "options": self.options}
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        return {k: getattr(self, k).detach().cpu().clone() for k in self._TENSORS}
+
+    def save(self, out_dir: str | Path) -> None:
+        """Write ``model.pt`` (tensors only) and ``config.json`` into ``out_dir``."""
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        torch.save(self.state_dict(), out_dir / "model.pt")
+        (out_dir / "config.json").write_text(json.dumps(self.config_dict(), indent=2) + "\n")
+
+    @classmethod
+    def load(cls, model_dir: str | Path, dtype: torch.dtype = torch.float64, device="cpu",
+             kin=None) -> "TaskModel":
+        """Rebuild a model written by ``save``.
+
+        Raises
+        ------
+        ModelFormatError
+            missing files, a ``config.json`` that is not ours, tensors of the wrong shape.
+        """
+        model_dir = Path(model_dir)
+        cfg_path, pt_path = model_dir / "config.json", model_dir / "model.pt"
+        for p in (cfg_path, pt_path):
+            if not p.is_file():
+                raise ModelFormatError(f"{model_dir}: not an lfd task model (missing {p.name})")
+        try:
+            cfg = json.loads(cfg_path.read_text())
+        except ValueError as e:
+            raise ModelFormatError(f"{cfg_path}: not valid JSON ({e})") from e
+        if not isinstance(cfg, dict) or cfg.get("format") != FORMAT:
+            raise ModelFormatError(f"{cfg_path}: not an lfd task model config (expected format "
+                                   f"{FORMAT!r}, got {cfg.get('format') if isinstance(cfg, dict) else cfg!r})")
+        try:
+            state = torch.load(pt_path, map_location="cpu", weights_only=True)
+        except Exception as e:  # torch raises several kinds for foreign or damaged files
+            raise ModelFormatError(f"{pt_path}: cannot be read as a tensor state dict ({e})") from e
+        if not isinstance(state, dict) or set(state) != set(cls._TENSORS):
+            raise ModelFormatError(f"{pt_path}: expected tensors {list(cls._TENSORS)}, got "
+                                   f"{sorted(state) if isinstance(state, dict) else type(state).__name__}")
+        try:
+            t = {k: v.to(dtype=dtype, device=device) for k, v in state.items()}
+            return cls(t["tool"], t["env"], t["mu"], t["sigma_inv"], t["log_trans"],
+                       landmark_names=cfg["landmark_names"], robot=RobotSpec.from_dict(cfg["robot"]),
+                       task=TaskSpec.from_dict(cfg["task"]) if cfg.get("task") else None,
+                       all_landmark_names=cfg.get("all_landmark_names"), offsets=cfg["offsets"],
+                       covariance=cfg["covariance"], logdet_scale=cfg.get("logdet_scale", 1.0),
+                       options=cfg.get("options"), kin=kin)
+        except (KeyError, ValueError, TypeError) as e:
+            raise ModelFormatError(f"{model_dir}: inconsistent task model ({e})") from e
