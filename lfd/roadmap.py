@@ -1,0 +1,285 @@
+"""PRM* over joint space, built from callables (no robot, no simulator).
+
+The roadmap only knows three callables, in the style of caelan/motion-planners:
+
+* ``sample_fn(n) -> (n, d)`` array of configurations (e.g. uniform within joint limits);
+* ``collision_fn(q: (d,)) -> bool`` (True = in collision), or ``batch_collision_fn(Q: (n, d)) ->
+  (n,) bool``;
+* ``segment_fn(q1: (d,), q2: (d,)) -> bool`` (True = the straight segment collides).
+
+Connection rule (Karaman & Frazzoli's k-nearest PRM*): every vertex added when the roadmap holds
+``n`` vertices is joined to its ``k_PRM*(n) = ceil(k_scale * e * (1 + 1/d) * log n)`` nearest
+neighbours (Euclidean, scipy ``cKDTree``); ``k`` grows with ``n``. ``add_vertices`` grows a roadmap
+incrementally: new vertices are joined to their nearest among old and new vertices, old edges are
+kept, nothing is rebuilt except the k-d tree (O(n log n), milliseconds at n = 10^4).
+
+Collision checking of edges is lazy by default (``RoadmapSettings.lazy``): an edge is checked the
+first time a planner asks for the neighbours of one of its endpoints (``free_neighbors``); free
+edges are marked ``free=True`` in the graph, colliding edges are removed. Obstacles are assumed not
+to move during execution (paper, Sec. III-A), so these results never need invalidation. Lazy
+checking makes building a 5,000-vertex roadmap cost only the vertex checks; a plan then checks the
+edges its search touches (see benchmarks/planning.py for the measured numbers).
+
+Vertices live in a numpy array ``vertices: (n, d)``; edges in a ``networkx.Graph`` whose nodes are
+the integer vertex ids ``0..n-1``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import networkx as nx
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ["RoadmapSettings", "Roadmap", "k_prm_star", "mixed_samples", "ik_biased_samples"]
+
+
+def k_prm_star(n: int, d: int, k_scale: float = 1.0) -> int:
+    """Number of neighbours of k-nearest PRM* for a roadmap of ``n`` vertices in dimension ``d``.
+
+    ``ceil(k_scale * e * (1 + 1/d) * log n)``, at least 1 and at most ``n - 1`` (0 when n < 2).
+    ``k_scale >= 1`` keeps the asymptotic optimality guarantee.
+    """
+    if d < 1:
+        raise ValueError(f"Expected d >= 1, got {d}")
+    if n < 2:
+        return 0
+    k = math.ceil(k_scale * math.e * (1.0 + 1.0 / d) * math.log(n))
+    return int(min(max(k, 1), n - 1))
+
+
+@dataclass(frozen=True)
+class RoadmapSettings:
+    """k_scale: multiplier of k_PRM* (>= 1 for asymptotic optimality);
+    lazy: check edges on first use (True) or when they are created (False);
+    max_sample_rounds: rounds of rejection sampling ``build`` tries before giving up."""
+    k_scale: float = 1.0
+    lazy: bool = True
+    max_sample_rounds: int = 50
+
+    def __post_init__(self):
+        if not self.k_scale > 0:
+            raise ValueError(f"Expected k_scale > 0, got {self.k_scale}")
+        if self.max_sample_rounds < 1:
+            raise ValueError(f"Expected max_sample_rounds >= 1, got {self.max_sample_rounds}")
+
+
+class Roadmap:
+    """A PRM* roadmap that grows incrementally.
+
+    Parameters
+    ----------
+    d : dimension of the configuration space.
+    collision_fn : ``q (d,) -> bool``, True when ``q`` is in collision.
+    segment_fn : ``(q1 (d,), q2 (d,)) -> bool``, True when the segment collides.
+    batch_collision_fn : optional ``Q (n, d) -> (n,) bool``; used instead of ``collision_fn`` for
+        batches.
+    settings : RoadmapSettings.
+    """
+
+    def __init__(self, d: int, collision_fn: Callable, segment_fn: Callable, *,
+                 batch_collision_fn: Callable | None = None,
+                 settings: RoadmapSettings = RoadmapSettings()):
+        if int(d) != d or d < 1:
+            raise ValueError(f"Expected d a positive integer, got {d!r}")
+        self.d = int(d)
+        self.collision_fn = collision_fn
+        self.segment_fn = segment_fn
+        self.batch_collision_fn = batch_collision_fn
+        self.settings = settings
+        self.graph = nx.Graph()
+        self._buf = np.empty((0, self.d))
+        self._n = 0
+        self._tree: cKDTree | None = None
+        self.counters = {"vertex_checks": 0, "segment_checks": 0, "edges_removed": 0}
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def build(cls, sample_fn: Callable, n: int, collision_fn: Callable, segment_fn: Callable, *,
+              biased_samples: np.ndarray | None = None, batch_collision_fn: Callable | None = None,
+              settings: RoadmapSettings = RoadmapSettings()) -> "Roadmap":
+        """Sample ``n`` collision-free vertices and connect them.
+
+        ``biased_samples: (m, d)`` are candidate configurations (e.g. from ``mixed_samples`` or
+        ``ik_biased_samples``); the free ones among the first ``n`` are used first, uniform samples
+        from ``sample_fn`` fill the rest. Fewer than ``n`` vertices result only when rejection
+        sampling fails ``settings.max_sample_rounds`` times in a row.
+        """
+        if n < 1:
+            raise ValueError(f"Expected n >= 1, got {n}")
+        first = np.asarray(sample_fn(1), dtype=float)
+        if first.ndim != 2:
+            raise ValueError(f"Expected sample_fn(n) to return shape (n, d), got {first.shape}")
+        rm = cls(first.shape[1], collision_fn, segment_fn, batch_collision_fn=batch_collision_fn,
+                 settings=settings)
+        chunks, have = [], 0
+        if biased_samples is not None:
+            B = rm._check_Q(biased_samples, "biased_samples")[:n]
+            B = B[~rm.in_collision(B)]
+            chunks.append(B)
+            have = len(B)
+        for _ in range(settings.max_sample_rounds):
+            if have >= n:
+                break
+            Q = rm._check_Q(sample_fn(n - have), "sample_fn(n)")
+            Q = Q[~rm.in_collision(Q)]
+            chunks.append(Q)
+            have += len(Q)
+        Q = np.concatenate(chunks, axis=0)[:n] if chunks else np.empty((0, rm.d))
+        rm.add_vertices(Q, check=False)
+        return rm
+
+    def _check_Q(self, Q, name: str) -> np.ndarray:
+        Q = np.asarray(Q, dtype=float)
+        if Q.ndim != 2 or Q.shape[1] != self.d:
+            raise ValueError(f"Expected {name} with shape (n, {self.d}), got {Q.shape}")
+        return Q
+
+    def in_collision(self, Q: np.ndarray) -> np.ndarray:
+        """Q: (n, d) -> (n,) bool, True where the configuration collides."""
+        Q = self._check_Q(Q, "Q")
+        self.counters["vertex_checks"] += len(Q)
+        if len(Q) == 0:
+            return np.zeros(0, dtype=bool)
+        if self.batch_collision_fn is not None:
+            return np.asarray(self.batch_collision_fn(Q), dtype=bool).reshape(len(Q))
+        return np.fromiter((bool(self.collision_fn(q)) for q in Q), dtype=bool, count=len(Q))
+
+    def add_vertices(self, Q: np.ndarray, check: bool = True) -> np.ndarray:
+        """Add configurations ``Q: (m, d)`` and connect each to its ``k_PRM*(n_total)`` nearest.
+
+        Colliding configurations are dropped when ``check``. Returns the new vertex ids ``(m',)``.
+        Existing vertices and edges are kept; only the k-d tree is rebuilt.
+        """
+        Q = self._check_Q(Q, "Q")
+        if check and len(Q):
+            Q = Q[~self.in_collision(Q)]
+        m = len(Q)
+        if m == 0:
+            return np.zeros(0, dtype=int)
+        n0 = self._n
+        if n0 + m > len(self._buf):  # amortized growth of the vertex buffer
+            buf = np.empty((max(2 * len(self._buf), n0 + m), self.d))
+            buf[:n0] = self._buf[:n0]
+            self._buf = buf
+        self._buf[n0:n0 + m] = Q
+        self._n = n0 + m
+        ids = np.arange(n0, n0 + m)
+        self.graph.add_nodes_from(ids.tolist())
+        self._tree = cKDTree(self.vertices)
+        k = self.k()
+        if k > 0:
+            _, nbr = self._tree.query(Q, k=k + 1)
+            nbr = nbr.reshape(m, k + 1)
+            for i, row in zip(ids.tolist(), nbr.tolist()):
+                for j in row:
+                    if j != i and j < self._n and not self.graph.has_edge(i, j):
+                        self._add_edge(i, j)
+        return ids
+
+    def _add_edge(self, i: int, j: int) -> None:
+        if self.settings.lazy:
+            self.graph.add_edge(i, j, free=None)
+        elif not self._segment_collides(self._buf[i], self._buf[j]):
+            self.graph.add_edge(i, j, free=True)
+
+    def _segment_collides(self, q1, q2) -> bool:
+        self.counters["segment_checks"] += 1
+        return bool(self.segment_fn(q1, q2))
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def n(self) -> int:
+        """Number of vertices."""
+        return self._n
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """(n, d) read-only view of the vertex configurations."""
+        v = self._buf[:self._n]
+        v.flags.writeable = False
+        return v
+
+    def k(self, n: int | None = None) -> int:
+        """k_PRM* for ``n`` vertices (default: the current size)."""
+        return k_prm_star(self._n if n is None else n, self.d, self.settings.k_scale)
+
+    def nearest(self, q: np.ndarray, k: int) -> np.ndarray:
+        """Ids ``(min(k, n),)`` of the vertices nearest to ``q: (d,)``, nearest first."""
+        if self._tree is None or k < 1:
+            return np.zeros(0, dtype=int)
+        k = min(k, self._n)
+        _, idx = self._tree.query(np.asarray(q, dtype=float).reshape(self.d), k=k)
+        return np.atleast_1d(idx).astype(int)
+
+    def edge_free(self, u: int, v: int) -> bool:
+        """Whether edge ``u-v`` exists and is collision-free (checked now if unknown, cached)."""
+        data = self.graph.get_edge_data(u, v)
+        if data is None:
+            return False
+        if data["free"] is None:
+            if self._segment_collides(self._buf[u], self._buf[v]):
+                self.graph.remove_edge(u, v)
+                self.counters["edges_removed"] += 1
+                return False
+            data["free"] = True
+        return True
+
+    def free_neighbors(self, v: int) -> list[int]:
+        """Neighbours of vertex ``v`` joined by collision-free edges (unknown edges checked now)."""
+        nbrs = list(self.graph.adj[v])
+        return [w for w in nbrs if self.edge_free(v, w)]
+
+    def connect_point(self, q: np.ndarray, k: int | None = None) -> list[int]:
+        """Vertices a new configuration ``q: (d,)`` can be joined to, without adding it.
+
+        Checks the segments to its ``k`` (default ``k_PRM*(n + 1)``) nearest vertices; nothing is
+        cached, so per-replan start configurations do not grow any state.
+        """
+        q = np.asarray(q, dtype=float).reshape(self.d)
+        k = k_prm_star(self._n + 1, self.d, self.settings.k_scale) if k is None else k
+        return [int(j) for j in self.nearest(q, k)
+                if not self._segment_collides(q, self._buf[j])]
+
+    def check_all_edges(self) -> int:
+        """Check every unknown edge now (eager mode after the fact); returns how many collided."""
+        before = self.counters["edges_removed"]
+        for u, v in list(self.graph.edges):
+            self.edge_free(u, v)
+        return self.counters["edges_removed"] - before
+
+
+def mixed_samples(sample_fn: Callable, n: int, biased_samples: np.ndarray, bias_fraction: float,
+                  rng: np.random.Generator) -> np.ndarray:
+    """``n`` configurations ``(n, d)``: ``round(bias_fraction * n)`` drawn without replacement from
+    ``biased_samples: (m, d)`` (all of them when m is smaller), the rest from ``sample_fn``; shuffled.
+    """
+    if not 0.0 <= bias_fraction <= 1.0:
+        raise ValueError(f"Expected bias_fraction in [0, 1], got {bias_fraction}")
+    if n < 0:
+        raise ValueError(f"Expected n >= 0, got {n}")
+    B = np.asarray(biased_samples, dtype=float)
+    if B.ndim != 2:
+        raise ValueError(f"Expected biased_samples with shape (m, d), got {B.shape}")
+    m = min(int(round(bias_fraction * n)), len(B))
+    pick = B[rng.choice(len(B), size=m, replace=False)] if m else B[:0]
+    U = np.asarray(sample_fn(n - m), dtype=float).reshape(n - m, B.shape[1])
+    Q = np.concatenate([pick, U], axis=0)
+    return Q[rng.permutation(n)]
+
+
+def ik_biased_samples(targets, ik_fn: Callable) -> np.ndarray:
+    """Configurations reaching task-space ``targets`` (e.g. the model's per-step means).
+
+    ``ik_fn(targets) -> (Q: (m, d), ok: (m,) bool)``: any batched IK (lfd.ik, with the tool offset and
+    seeds chosen by the caller). Returns ``Q[ok]: (m', d)`` as a float numpy array.
+    """
+    Q, ok = ik_fn(targets)
+    Q = np.asarray(Q.detach().cpu() if hasattr(Q, "detach") else Q, dtype=float)
+    ok = np.asarray(ok.detach().cpu() if hasattr(ok, "detach") else ok, dtype=bool).reshape(-1)
+    if Q.ndim != 2 or len(Q) != len(ok):
+        raise ValueError(f"Expected ik_fn to return Q (m, d) and ok (m,), got {Q.shape}, {ok.shape}")
+    return Q[ok]

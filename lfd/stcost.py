@@ -1,0 +1,313 @@
+"""Lazy, cached edge costs of the spatiotemporal roadmap (paper Sec. V-B).
+
+Inputs: the learned model's per-step cost ``step_nll(Q: (B, d)) -> (B, T)`` = L(q | zeta, eta_t,
+a_hat) for the current landmarks, the transition table ``log_trans: (T, K)`` over ``offsets``
+(``log_trans[t, i]`` = log p(t + offsets[i] | t)), the demonstrations' sampling interval ``dt`` and
+the joint velocity limits ``vmax: (d,)``.
+
+Costs (``ell`` is the shifted step cost, below):
+
+* time edge ``(v, t) -> (v, t + k)``, k in offsets, k > 0: one sampling interval at ``q_v``:
+  ``-log_trans[t, k] + ell(q_v, t + k)``;
+* roadmap edge ``(u, t) -> (w, t)``: the robot moves ``q_u -> q_w`` at its velocity limits, taking
+  ``tau = max_j |q_w - q_u|_j / vmax_j`` seconds = ``tau / dt`` sampling intervals, each of which
+  is a self-transition at step ``t``. The cost is the line integral over time
+  ``(1/dt) * int_0^tau [ -log p(t | t) + ell(q(s), t) ] ds``
+  ``= (tau/dt) * ( -log p(t|t) + mean_s ell(q(s), t) )``, with the mean over the segment taken by
+  the trapezoid rule on ``m + 1`` equally spaced points, ``m = max(1, ceil(tau / quad_dt))``
+  (``quad_dt`` defaults to ``dt``; the error is O(1/m^2) for smooth costs). Edges are evaluated
+  for all T steps at once, so one ``step_nll`` call on the interior points of all edges of a
+  vertex serves every time layer. Roadmap edges need ``offsets`` to contain 0.
+
+Non-negative costs. A Gaussian negative log-likelihood is negative where the density exceeds 1,
+and Dijkstra/A* need non-negative edge costs. We use ``ell(q, t) = max(L(q|t) - s, 0)`` with the
+constant ``s = min(0, floor)``, where ``floor`` is ``CostSettings.nll_floor`` when given (a true
+lower bound, e.g. ``min_t 1/2 log det(2 pi Sigma_t)`` in nll units), otherwise the minimum of L
+over every roadmap vertex and step (one batched call per landmark update). Subtracting ``s`` from
+every sampling interval adds ``|s|`` per interval: the planner minimizes
+``sum nll + |s| * (path duration / dt)``, i.e. the paper's cost plus a time penalty; for a fixed
+path duration the optimum is unchanged. The clamp at 0 is active only where L is below the floor,
+which never happens when the floor is a true bound (and, when estimated, only between vertices).
+
+A* heuristic: ``h(t)`` = the cheapest way to advance from step t to step T-1 using time edges that
+land on the cheapest vertex of each step (DP over t); roadmap edges cost >= 0 and time edges cost
+at least ``-log p(t'|t) + min_v ell(q_v, t')``, so ``h`` is admissible and consistent.
+
+Caches: raw vertex costs ``(n, T)`` keyed by vertex id, per-vertex edge cost tables, both dropped
+by ``set_step_nll`` (new landmarks); temporary vertices (the robot's current configuration, a
+goal) are ids < 0, re-set for every plan and never accumulate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import torch
+
+from lfd.roadmap import Roadmap
+
+__all__ = ["CostSettings", "CostError", "SpatiotemporalCosts", "segment_nodes"]
+
+
+class CostError(ValueError):
+    """The step cost returned something unusable (wrong shape, NaN, +inf everywhere...)."""
+
+
+@dataclass(frozen=True)
+class CostSettings:
+    """quad_dt: max time (s) between quadrature nodes along an edge (None: the model's dt);
+    nll_floor: known lower bound on step_nll (None: estimated from all roadmap vertices);
+    heuristic: compute the A* heuristic (needs every vertex's cost, one batched call);
+    max_batch: rows per step_nll call; dtype: of the tensors passed to step_nll."""
+    quad_dt: float | None = None
+    nll_floor: float | None = None
+    heuristic: bool = True
+    max_batch: int = 16384
+    dtype: torch.dtype = torch.float64
+
+    def __post_init__(self):
+        if self.quad_dt is not None and not self.quad_dt > 0:
+            raise ValueError(f"Expected quad_dt > 0, got {self.quad_dt}")
+        if self.max_batch < 1:
+            raise ValueError(f"Expected max_batch >= 1, got {self.max_batch}")
+
+
+def segment_nodes(q1: np.ndarray, q2: np.ndarray, vmax: np.ndarray, quad_dt: float):
+    """Traversal time ``tau`` and the ``m + 1`` quadrature nodes ``(m + 1, d)`` of segment q1-q2."""
+    tau = float(np.max(np.abs(q2 - q1) / vmax))
+    m = max(1, math.ceil(tau / quad_dt - 1e-9))
+    s = np.linspace(0.0, 1.0, m + 1)[:, None]
+    return tau, q1[None, :] * (1.0 - s) + q2[None, :] * s
+
+
+class SpatiotemporalCosts:
+    """Edge costs of the spatiotemporal roadmap over ``roadmap``, evaluated lazily and cached.
+
+    Parameters
+    ----------
+    roadmap : Roadmap (its lazy edge checks are triggered by ``spatial``).
+    log_trans : (T, K) log-probabilities of the transitions ``offsets``; -inf = not permitted.
+    dt : sampling interval (s) of the demonstrations.
+    vmax : (d,) joint velocity limits (rad/s), all > 0.
+    offsets : (K,) non-negative time-step offsets, e.g. (0, 1, 2).
+    """
+
+    def __init__(self, roadmap: Roadmap, log_trans, dt: float, vmax, offsets=(0, 1, 2),
+                 settings: CostSettings = CostSettings()):
+        lt = np.asarray(log_trans, dtype=float)
+        offsets = tuple(int(k) for k in offsets)
+        if lt.ndim != 2 or lt.shape[1] != len(offsets) or lt.shape[0] < 1:
+            raise ValueError(f"Expected log_trans with shape (T, {len(offsets)}), got {lt.shape}")
+        if np.any(lt > 1e-9):
+            raise ValueError("Expected log_trans <= 0 (log-probabilities), got a maximum of "
+                             f"{lt.max()}")
+        if any(k < 0 for k in offsets) or len(set(offsets)) != len(offsets):
+            raise ValueError(f"Expected distinct non-negative offsets, got {offsets}")
+        if not dt > 0:
+            raise ValueError(f"Expected dt > 0, got {dt}")
+        vmax = np.asarray(vmax, dtype=float).reshape(-1)
+        if vmax.shape != (roadmap.d,) or not np.all(vmax > 0):
+            raise ValueError(f"Expected vmax with shape ({roadmap.d},) and > 0, got {vmax}")
+        self.roadmap, self.dt, self.vmax, self.settings = roadmap, float(dt), vmax, settings
+        self.T = lt.shape[0]
+        self.quad_dt = float(settings.quad_dt or dt)
+        # trans[t, k] = -log p(t + k | t) for k in 0..max(offsets), inf where not permitted
+        trans = np.full((self.T, max(offsets) + 1), np.inf)
+        for i, k in enumerate(offsets):
+            trans[:, k] = -lt[:, i]
+        trans[~np.isfinite(trans)] = np.inf
+        for k in range(trans.shape[1]):
+            trans[max(self.T - k, 0):, k] = np.inf  # t + k beyond the last step
+        self.trans = trans  # trans[:, 0] = -log p(t | t): the cost rate of roadmap edges
+        self.time_offsets = tuple(k for k in offsets if k > 0)
+        self._step_nll: Callable | None = None
+        self._temp: dict[int, np.ndarray] = {}
+        self._links: dict[int, list[int]] = {}  # temp id -> roadmap ids it is joined to
+        self._back: dict[int, list[int]] = {}  # roadmap id -> temp ids joined to it
+        self.counters = {"edges": 0, "points": 0, "calls": 0}
+        self._reset()
+
+    # ------------------------------------------------------------------ invalidation
+    def _reset(self) -> None:
+        self._vraw = np.full((self.roadmap.n, self.T), np.nan)  # raw L(q_v | t), by vertex id
+        self._tempraw: dict[int, np.ndarray] = {}
+        self._shift: float | None = None
+        self._h: np.ndarray | None = None
+        self._out: dict[int, tuple[list[int], np.ndarray]] = {}  # v -> (nbrs, (deg, T) costs)
+        self._edge: dict[tuple[int, int], np.ndarray] = {}  # roadmap edge (a < b) -> (T,) costs
+        self._tout: dict[int, tuple[list[int], np.ndarray]] = {}  # per plan, see set_temporary
+        self._tedge: dict[tuple[int, int], np.ndarray] = {}  # per plan, edges with a temp vertex
+        self._graph_size = self.roadmap.graph.number_of_nodes()
+
+    def set_step_nll(self, step_nll: Callable) -> None:
+        """New landmarks: use ``step_nll`` from now on and drop every landmark-dependent cache."""
+        self._step_nll = step_nll
+        self._reset()
+
+    def set_temporary(self, temps: dict[int, np.ndarray], links: dict[int, list[int]]) -> None:
+        """Temporary vertices for one plan: ``temps[id < 0] = q (d,)`` joined to roadmap ``links[id]``
+        (already collision-checked). Replaces the previous ones and their cached edges."""
+        for i in [i for i in self._out if i < 0]:
+            del self._out[i]
+        self._tout, self._tedge = {}, {}
+        self._temp = {i: np.asarray(q, dtype=float).reshape(self.roadmap.d) for i, q in temps.items()}
+        self._links = {i: list(links.get(i, [])) for i in self._temp}
+        self._back = {}
+        for i, ws in self._links.items():
+            for w in ws:
+                self._back.setdefault(w, []).append(i)
+        self._tempraw = {}
+
+    # ------------------------------------------------------------------ evaluation
+    def _eval(self, Q: np.ndarray) -> np.ndarray:
+        """Raw step costs ``(B, T)`` of ``Q: (B, d)``, in chunks of ``max_batch``."""
+        if self._step_nll is None:
+            raise CostError("no step cost set: call set_step_nll first")
+        out = np.empty((len(Q), self.T))
+        for a in range(0, len(Q), self.settings.max_batch):
+            chunk = torch.tensor(Q[a:a + self.settings.max_batch], dtype=self.settings.dtype)
+            with torch.no_grad():
+                L = self._step_nll(chunk)
+            L = np.asarray(L.detach().cpu() if hasattr(L, "detach") else L, dtype=float)
+            if L.shape != (len(chunk), self.T):
+                raise CostError(f"Expected step_nll to return shape ({len(chunk)}, {self.T}), "
+                                f"got {L.shape}")
+            if np.isnan(L).any():
+                raise CostError("step_nll returned NaN")
+            out[a:a + len(chunk)] = L
+            self.counters["calls"] += 1
+        self.counters["points"] += len(Q)
+        return out
+
+    def _pos(self, v: int) -> np.ndarray:
+        return self._temp[v] if v < 0 else self.roadmap._buf[v]
+
+    def _ensure_vertices(self, ids) -> None:
+        """Fill the raw cost of roadmap vertices ``ids`` that are not cached yet."""
+        if self._vraw.shape[0] < self.roadmap.n:  # the roadmap grew: extend, keep old rows
+            grow = np.full((self.roadmap.n - self._vraw.shape[0], self.T), np.nan)
+            self._vraw = np.concatenate([self._vraw, grow], axis=0)
+        ids = np.asarray(ids, dtype=int)
+        miss = ids[np.isnan(self._vraw[ids, 0])]
+        if len(miss):
+            miss = np.unique(miss)
+            self._vraw[miss] = self._eval(self.roadmap._buf[miss])
+
+    def _raw(self, v: int) -> np.ndarray:
+        """(T,) raw step cost of vertex v (roadmap or temporary)."""
+        if v < 0:
+            if v not in self._tempraw:
+                self._tempraw[v] = self._eval(self._temp[v][None])[0]
+            return self._tempraw[v]
+        self._ensure_vertices([v])
+        return self._vraw[v]
+
+    def prepare(self) -> None:
+        """Per plan: vertex costs and shift (and the heuristic) for the current landmarks."""
+        need_all = self.settings.heuristic or self.settings.nll_floor is None
+        if need_all:
+            self._ensure_vertices(np.arange(self.roadmap.n))
+        if self.settings.nll_floor is not None:
+            shift = min(0.0, float(self.settings.nll_floor))
+        else:
+            shift = min(0.0, float(np.min(self._vraw))) if self.roadmap.n else 0.0
+        if self._shift is None or shift != self._shift:
+            self._shift = shift
+            self._out, self._edge, self._tout, self._tedge = {}, {}, {}, {}
+        if self._graph_size != self.roadmap.graph.number_of_nodes():  # grown: stale edge tables
+            self._graph_size = self.roadmap.graph.number_of_nodes()
+            adj = self.roadmap.graph.adj
+            for v in [v for v, (nbrs, _) in self._out.items() if v >= 0]:
+                if len(adj[v]) != len(self._out[v][0]):
+                    del self._out[v]
+        for v in self._temp:
+            self._raw(v)
+        self._h = self._heuristic_table() if self.settings.heuristic else None
+
+    def ell(self, raw: np.ndarray) -> np.ndarray:
+        """Shifted, non-negative step cost of raw values (any shape)."""
+        return np.maximum(raw - self._shift, 0.0)
+
+    def _heuristic_table(self) -> np.ndarray:
+        rows = [self._vraw[:self.roadmap.n]] + [self._raw(v)[None] for v in self._temp]
+        minv = self.ell(np.concatenate(rows, axis=0)).min(axis=0)  # (T,)
+        h = np.full(self.T, np.inf)
+        h[-1] = 0.0
+        for t in range(self.T - 2, -1, -1):
+            for k in self.time_offsets:
+                if t + k < self.T:
+                    h[t] = min(h[t], self.trans[t, k] + minv[t + k] + h[t + k])
+        return h
+
+    def heuristic(self, t: int) -> float:
+        """Admissible, consistent lower bound on the cost from step ``t`` to step T-1."""
+        return 0.0 if self._h is None else float(self._h[t])
+
+    def time_cost(self, v: int, t: int, k: int) -> float:
+        """Cost of the time edge ``(v, t) -> (v, t + k)``; inf when not permitted."""
+        c = self.trans[t, k]
+        if not np.isfinite(c):
+            return math.inf
+        return float(c + self.ell(self._raw(v)[t + k]))
+
+    def spatial(self, v: int) -> tuple[list[int], np.ndarray]:
+        """Collision-free neighbours of ``v`` and their edge costs ``(deg, T)`` at every step.
+
+        For a roadmap vertex: its roadmap neighbours (unknown edges are collision-checked now);
+        for a temporary vertex: the vertices it is joined to. Cached per landmark set (roadmap
+        vertices) or per plan (temporary vertices).
+        """
+        hit = self._out.get(v)
+        if hit is None:
+            nbrs = (self._links.get(v, []) + self._back.get(v, [])) if v < 0 \
+                else self.roadmap.free_neighbors(v)
+            hit = self._out[v] = (nbrs, self._edge_table(v, nbrs))
+        return hit
+
+    def temporary_spatial(self, v: int) -> tuple[list[int], np.ndarray]:
+        """Edges from roadmap vertex ``v`` to the temporary vertices joined to it (per plan)."""
+        hit = self._tout.get(v)
+        if hit is None:
+            nbrs = self._back.get(v, [])
+            hit = self._tout[v] = (nbrs, self._edge_table(v, nbrs))
+        return hit
+
+    def _edge_table(self, v: int, nbrs: list[int]) -> np.ndarray:
+        """Costs ``(len(nbrs), T)`` of edges ``v-w``; all missing ones evaluated in one call."""
+        C = np.empty((len(nbrs), self.T))
+        todo = []
+        for i, w in enumerate(nbrs):
+            key = (v, w) if v < w else (w, v)
+            vec = (self._tedge if key[0] < 0 else self._edge).get(key)
+            if vec is None:
+                todo.append((i, w, key))
+            else:
+                C[i] = vec
+        if not todo:
+            return C
+        self._ensure_vertices([w for _, w, _ in todo if w >= 0] + ([v] if v >= 0 else []))
+        segs, interior = [], []
+        for _, w, _ in todo:
+            tau, P = segment_nodes(self._pos(v), self._pos(w), self.vmax, self.quad_dt)
+            segs.append((tau, len(P) - 1))
+            interior.append(P[1:-1])
+        n_in = sum(len(P) for P in interior)
+        Lin = self.ell(self._eval(np.concatenate(interior, axis=0))) if n_in else None
+        self.counters["edges"] += len(todo)
+        ev = self.ell(self._raw(v))
+        self_cost = self.trans[:, 0]
+        row = 0
+        for (i, w, key), (tau, m) in zip(todo, segs):
+            total = 0.5 * (ev + self.ell(self._raw(w)))  # trapezoid: endpoints weigh 1/2
+            if m > 1:
+                total = total + Lin[row:row + m - 1].sum(axis=0)
+                row += m - 1
+            with np.errstate(invalid="ignore"):
+                vec = (tau / self.dt) * (self_cost + total / m)
+            vec[np.isnan(vec)] = np.inf  # tau = 0 with a forbidden self-transition
+            (self._tedge if key[0] < 0 else self._edge)[key] = vec
+            C[i] = vec
+        return C
