@@ -1,0 +1,144 @@
+"""Seeded test scenarios, drawn as in the paper's evaluation (Sec. VI).
+
+Drawing rule (also stated in the README):
+
+* the bowl is uniform in the 30-inch square (``layout.SQUARE_*``), at least
+  ``MIN_BOWL_SOURCE`` from the source container so the task has a carrying phase;
+* the **paper-towel roll** stands on the carrying line from the source container to the
+  bowl, a uniform fraction ``[0.35, 0.65]`` of the way, shifted sideways by at most 4 cm: a
+  motion that carries the tool straight over to the bowl runs into it;
+* the **lamp shade** hangs above the carrying line (a uniform fraction ``[0.3, 0.8]`` of the
+  way, 5 cm sideways at most), its lower rim ``LAMP_BOTTOM_RANGE`` above the table: the
+  height through which the arm lifts and carries the tool;
+* ``powder``: the bowl moves midway through the task (when the executed time step reaches
+  ``move_at_step``) to a second uniform place in the square at least ``MIN_MOVE`` away;
+  the four distractor markers are uniform in the square, lifted ``layout.MARKER_HEIGHT...``;
+* ``pour``: the vase, the scissors, the spoon and the (landmark) paper-towel roll are the
+  other sensed landmarks; vase and scissors/spoon are uniform in the square;
+* scenarios that no plan could solve are not drawn: an obstacle closer than
+  ``CLEARANCE`` to the bowl (at either place) or to the source container is redrawn, and so
+  is anything off the table.
+
+The same ``(task, seed)`` always gives the same scenario; scenario ``i`` of a set with base
+seed ``S`` uses seed ``S * 100_003 + i``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim import layout as L
+
+__all__ = ["Scenario", "draw_scenario", "draw_scenarios", "MIN_BOWL_SOURCE", "CLEARANCE"]
+
+MIN_BOWL_SOURCE = 0.30       # m, bowl centre to source container centre
+MIN_MOVE = 0.20              # m, how far the bowl moves in the powder closed-loop test
+CLEARANCE = 0.10             # m, free gap between an obstacle's and the bowl's / source's outline
+LAMP_BOTTOM_RANGE = (0.28, 0.42)  # m above the table top
+MAX_TRIES = 10_000
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One test scene.
+
+    ``placements``: object name -> ``(x, y)`` on the table or ``(x, y, z)`` base position.
+    ``bowl_after``: where the bowl moves (``powder``), applied when the executed time step
+    reaches ``move_at_step``; None for no move.
+    """
+
+    task: str
+    seed: int
+    placements: dict = field(default_factory=dict)
+    bowl_after: tuple | None = None
+    move_at_step: int | None = None
+
+    def to_dict(self) -> dict:
+        return {"task": self.task, "seed": self.seed,
+                "placements": {k: [float(x) for x in v] for k, v in self.placements.items()},
+                "bowl_after": None if self.bowl_after is None else [float(x) for x in self.bowl_after],
+                "move_at_step": self.move_at_step}
+
+
+def _in_square(rng) -> np.ndarray:
+    c = np.asarray(L.SQUARE_CENTER_XY)
+    return c + rng.uniform(-L.SQUARE_HALF, L.SQUARE_HALF, 2)
+
+
+def _on_table(xy, margin: float) -> bool:
+    c, h = np.asarray(L.TABLE_CENTER_XY), np.asarray(L.TABLE_HALF_XY)
+    return bool(np.all(np.abs(np.asarray(xy) - c) <= h - margin))
+
+
+def _on_line(rng, a, b, frac_range, max_side) -> np.ndarray:
+    d = b - a
+    normal = np.array([-d[1], d[0]]) / max(np.linalg.norm(d), 1e-9)
+    return a + rng.uniform(*frac_range) * d + rng.uniform(-max_side, max_side) * normal
+
+
+def _clear(xy, radius, others) -> bool:
+    """``xy`` with ``radius`` keeps ``CLEARANCE`` from every ``(centre, radius)`` in others."""
+    return all(np.linalg.norm(np.asarray(xy) - np.asarray(c)) >= radius + r + CLEARANCE for c, r in others)
+
+
+def draw_scenario(task: str, seed: int, time_steps: int = 24) -> Scenario:
+    """The scenario of ``(task, seed)``; see the module docstring for the rule."""
+    if task not in ("powder", "pour"):
+        raise ValueError(f"task must be 'powder' or 'pour', got {task!r}")
+    rng = np.random.default_rng(seed)
+    source = np.asarray(L.SOURCE_DEFAULT_XY, dtype=float)
+    source_r = float(np.hypot(*L.SOURCE_HALF_XY))
+    bowl_r = L.BOWL_RADIUS + L.BOWL_WALL
+    towel_r = L.PAPER_TOWELS_RADIUS
+    for _ in range(MAX_TRIES):
+        bowl = _in_square(rng)
+        if np.linalg.norm(bowl - source) < MIN_BOWL_SOURCE:
+            continue
+        bowls = [(bowl, bowl_r)]
+        bowl_after = None
+        if task == "powder":
+            bowl_after = _in_square(rng)
+            if (np.linalg.norm(bowl_after - bowl) < MIN_MOVE
+                    or np.linalg.norm(bowl_after - source) < MIN_BOWL_SOURCE):
+                continue
+            bowls.append((bowl_after, bowl_r))
+        keep_out = bowls + [(source, source_r)]
+        towels = _on_line(rng, source, bowl, (0.35, 0.65), 0.04)
+        if not (_on_table(towels, towel_r) and _clear(towels, towel_r, keep_out)):
+            continue
+        lamp = _on_line(rng, source, bowl, (0.3, 0.8), 0.05)
+        if not _on_table(lamp, 0.0):
+            continue
+        lamp_z = L.TABLE_TOP_Z + rng.uniform(*LAMP_BOTTOM_RANGE)
+        placements = {"bowl": tuple(bowl), "paper_towels": tuple(towels),
+                      "lamp_shade": (float(lamp[0]), float(lamp[1]), float(lamp_z))}
+        ok = True
+        if task == "powder":
+            for i in range(1, 5):
+                m = _in_square(rng)
+                placements[f"marker_{i}"] = (float(m[0]), float(m[1]),
+                                             L.TABLE_TOP_Z + L.MARKER_HEIGHT_ABOVE_TABLE)
+        else:
+            taken = keep_out + [(towels, towel_r)]
+            for name, r in (("vase", L.VASE_RADIUS), ("scissors", 0.08), ("spoon", 0.08)):
+                xy = _in_square(rng)
+                if not (_on_table(xy, r) and _clear(xy, r, taken)):
+                    ok = False
+                    break
+                placements[name] = tuple(xy)
+                taken.append((xy, r))
+        if not ok:
+            continue
+        return Scenario(task=task, seed=int(seed), placements=placements,
+                        bowl_after=None if bowl_after is None else tuple(bowl_after),
+                        move_at_step=(time_steps // 2) if bowl_after is not None else None)
+    raise RuntimeError(f"could not draw a solvable {task} scenario for seed {seed}")
+
+
+def draw_scenarios(task: str, n: int, base_seed: int = 0, time_steps: int = 24) -> list[Scenario]:
+    """``n`` scenarios of a set with ``base_seed``."""
+    if n < 1:
+        raise ValueError(f"the number of scenarios must be at least 1, got {n}")
+    return [draw_scenario(task, base_seed * 100_003 + i, time_steps) for i in range(n)]
