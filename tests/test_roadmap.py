@@ -1,0 +1,149 @@
+"""PRM* roadmap over callables: connection rule, incremental growth, lazy edge checks, sampling."""
+
+import math
+
+import numpy as np
+import pytest
+
+from lfd.roadmap import Roadmap, RoadmapSettings, ik_biased_samples, k_prm_star, mixed_samples
+
+BOX_LO, BOX_HI = np.array([-0.2, -0.6]), np.array([0.2, 0.6])
+
+
+def in_box(q):
+    return bool(np.all(q >= BOX_LO) and np.all(q <= BOX_HI))
+
+
+def segment_hits_box(q1, q2, step=0.005):
+    m = max(2, int(np.ceil(np.linalg.norm(q2 - q1) / step)) + 1)
+    return any(in_box(q1 + (q2 - q1) * s) for s in np.linspace(0.0, 1.0, m))
+
+
+def uniform(rng, d=2):
+    return lambda n: rng.uniform(-1.0, 1.0, (n, d))
+
+
+def free_roadmap(n, d=3, seed=0, **kw):
+    rng = np.random.default_rng(seed)
+    return Roadmap.build(uniform(rng, d), n, lambda q: False, lambda a, b: False, **kw)
+
+
+def test_k_prm_star_formula_and_growth():
+    for n, d in [(50, 2), (1000, 7), (5000, 7), (100, 3)]:
+        assert k_prm_star(n, d) == math.ceil(math.e * (1 + 1 / d) * math.log(n))
+    ks = [k_prm_star(n, 7) for n in (100, 1000, 5000, 10 ** 5)]
+    assert ks == sorted(ks) and ks[0] < ks[-1]
+    assert k_prm_star(1, 7) == 0 and k_prm_star(3, 7) == 2  # capped at n - 1
+
+
+def test_build_connects_each_vertex_to_its_k_nearest():
+    rm = free_roadmap(300)
+    k = k_prm_star(300, 3)
+    assert rm.n == 300 and rm.vertices.shape == (300, 3) and rm.k() == k
+    V = rm.vertices
+    for i in range(0, 300, 17):
+        nearest = np.argsort(np.linalg.norm(V - V[i], axis=1))[1:k + 1]
+        assert set(nearest.tolist()) <= set(rm.graph.adj[i])
+    degrees = np.array([deg for _, deg in rm.graph.degree])
+    assert degrees.min() >= k and rm.graph.number_of_edges() <= 300 * k
+
+
+def test_add_vertices_grows_without_rebuilding():
+    rm = free_roadmap(200, seed=1)
+    old_edges = set(rm.graph.edges)
+    k_old = rm.k()
+    rng = np.random.default_rng(2)
+    ids = rm.add_vertices(rng.uniform(-1, 1, (800, 3)))
+    assert ids.tolist() == list(range(200, 1000)) and rm.n == 1000
+    assert old_edges <= set(rm.graph.edges)
+    k_new = rm.k()
+    assert k_new > k_old
+    V = rm.vertices
+    for i in ids[::50]:
+        nearest = np.argsort(np.linalg.norm(V - V[i], axis=1))[1:k_new + 1]
+        assert set(nearest.tolist()) <= set(rm.graph.adj[int(i)])
+
+
+def test_vertices_are_free_and_lazy_edges_are_checked_on_use():
+    rng = np.random.default_rng(3)
+    rm = Roadmap.build(uniform(rng), 250, in_box, segment_hits_box)
+    assert not any(in_box(q) for q in rm.vertices)
+    assert rm.counters["segment_checks"] == 0  # lazy: nothing checked at build time
+    for v in range(0, rm.n, 5):
+        for w in rm.free_neighbors(v):
+            assert not segment_hits_box(rm.vertices[v], rm.vertices[w])
+    assert rm.counters["edges_removed"] > 0  # the box cuts some edges
+    checks = rm.counters["segment_checks"]
+    rm.free_neighbors(0)
+    assert rm.counters["segment_checks"] == checks  # results are cached
+
+
+def test_eager_roadmap_has_only_free_edges():
+    rng = np.random.default_rng(4)
+    rm = Roadmap.build(uniform(rng), 150, in_box, segment_hits_box,
+                       settings=RoadmapSettings(lazy=False))
+    assert rm.counters["segment_checks"] > 0
+    for u, v in rm.graph.edges:
+        assert not segment_hits_box(rm.vertices[u], rm.vertices[v])
+    assert rm.check_all_edges() == 0
+
+
+def test_batch_collision_fn_is_used():
+    rng = np.random.default_rng(5)
+    calls = []
+
+    def batch(Q):
+        calls.append(len(Q))
+        return np.array([in_box(q) for q in Q])
+
+    rm = Roadmap.build(uniform(rng), 100, lambda q: pytest.fail("single check"), segment_hits_box,
+                       batch_collision_fn=batch)
+    assert rm.n == 100 and calls and not any(in_box(q) for q in rm.vertices)
+
+
+def test_biased_samples_are_used_first_and_filtered():
+    rng = np.random.default_rng(6)
+    biased = np.array([[0.0, 0.0], [0.9, 0.9], [-0.9, 0.9]])  # the first is inside the box
+    rm = Roadmap.build(uniform(rng), 50, in_box, segment_hits_box, biased_samples=biased)
+    np.testing.assert_array_equal(rm.vertices[:2], biased[1:])
+
+
+def test_mixed_samples_ratio():
+    rng = np.random.default_rng(7)
+    biased = np.full((100, 2), 5.0)
+    Q = mixed_samples(uniform(rng), 200, biased, 0.25, rng)
+    assert Q.shape == (200, 2) and int(np.sum(Q[:, 0] == 5.0)) == 50
+    Q = mixed_samples(uniform(rng), 200, biased[:10], 0.5, rng)
+    assert int(np.sum(Q[:, 0] == 5.0)) == 10  # fewer candidates than asked: all of them
+    with pytest.raises(ValueError, match="bias_fraction"):
+        mixed_samples(uniform(rng), 10, biased, 1.5, rng)
+
+
+def test_ik_biased_samples_keeps_successes():
+    targets = np.arange(4.0)[:, None]
+
+    def ik_fn(x):
+        return np.repeat(x, 3, axis=1), x[:, 0] % 2 == 0
+
+    Q = ik_biased_samples(targets, ik_fn)
+    np.testing.assert_array_equal(Q, [[0, 0, 0], [2, 2, 2]])
+
+
+def test_connect_point_does_not_grow_the_roadmap():
+    rng = np.random.default_rng(8)
+    rm = Roadmap.build(uniform(rng), 100, in_box, segment_hits_box)
+    n, e = rm.n, rm.graph.number_of_edges()
+    for _ in range(50):
+        ids = rm.connect_point(rng.uniform(-1, 1, 2))
+        assert len(ids) <= k_prm_star(101, 2)
+    assert (rm.n, rm.graph.number_of_edges()) == (n, e)
+
+
+def test_errors_name_the_argument():
+    rm = free_roadmap(20)
+    with pytest.raises(ValueError, match="Q with shape"):
+        rm.add_vertices(np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="k_scale"):
+        RoadmapSettings(k_scale=0)
+    with pytest.raises(ValueError, match="n >= 1"):
+        Roadmap.build(uniform(np.random.default_rng(0)), 0, in_box, segment_hits_box)
