@@ -1,0 +1,225 @@
+"""A learned task model planned in a new scene: the glue between ``lfd.model`` and ``lfd.planner``.
+
+``TaskPlanner`` takes a ``TaskModel`` and the caller's own callables (``collision_fn``,
+``segment_fn``, optionally ``sample_fn``), builds a PRM* whose vertices are biased towards where
+the model wants the robot for the current landmarks, and re-plans lazily when landmarks move::
+
+    planner = TaskPlanner(model, collision_fn, segment_fn)
+    planner.update_landmarks(names, T_world_landmarks)   # (Z,) names, (Z, 4, 4) poses
+    result = planner.plan(q_current, t_current=0)        # lfd.planner.PlanResult
+
+Biased sampling (in the spirit of the paper's [2]): for each time step t, feature vectors are drawn
+from the learned Gaussian ``N(mu_t, Sigma_t)``; the joint part seeds IK and the task part (the tool
+point relative to the virtual landmark) is mapped into the world through the current ``K_virt``;
+IK then places the tool point there, pulled towards the sampled joints in the null space. The
+solutions are mixed with uniform samples (``bias_fraction``). When the task-relevant landmarks move
+by more than ``regrow_distance`` from every set the roadmap was grown for, new biased samples are
+added to the same roadmap; it is never rebuilt.
+
+FK of configurations handed to the cost is cached per batch (a bounded LRU keyed by the batch's
+bytes): the roadmap's vertices and quadrature points repeat across re-plans, only the landmarks
+change.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from lfd.ik import IKConfig, solve_ik
+from lfd.model import TaskModel
+from lfd.planner import ClosedLoopPlanner, PlannerSettings, PlanResult
+from lfd.roadmap import Roadmap, RoadmapSettings
+
+__all__ = ["TaskPlannerSettings", "TaskPlanner", "biased_configurations"]
+
+
+@dataclass(frozen=True)
+class TaskPlannerSettings:
+    """n_vertices: roadmap size; bias_fraction: share of vertices from the task model;
+    regrow_distance: landmark motion (m) that triggers new biased samples; regrow_vertices: how
+    many; fk_cache_rows: rows of cached FK at most; seed: of every random draw."""
+
+    n_vertices: int = 1000
+    bias_fraction: float = 0.6
+    regrow_distance: float = 0.10
+    regrow_vertices: int = 200
+    fk_cache_rows: int = 400_000
+    seed: int = 0
+    roadmap: RoadmapSettings = field(default_factory=RoadmapSettings)
+    planner: PlannerSettings = field(default_factory=PlannerSettings)
+
+    def __post_init__(self):
+        if self.n_vertices < 2:
+            raise ValueError(f"n_vertices must be at least 2, got {self.n_vertices}")
+        if not 0.0 <= self.bias_fraction <= 1.0:
+            raise ValueError(f"bias_fraction must be in [0, 1], got {self.bias_fraction}")
+        if self.regrow_distance <= 0 or self.regrow_vertices < 0:
+            raise ValueError("regrow_distance must be > 0 and regrow_vertices >= 0, got "
+                             f"{self.regrow_distance}, {self.regrow_vertices}")
+
+
+def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
+                          generator: torch.Generator) -> np.ndarray:
+    """``n`` configurations ``(m <= n, d)`` where the model wants the robot for ``landmarks``.
+
+    ``landmarks``: ``(Z, 4, 4)`` kept landmarks in model order. Samples are spread evenly over the
+    time steps; IK failures are dropped.
+    """
+    kin = model.kin
+    T, F = model.mu.shape
+    d = F - 3
+    per_step = max(1, -(-n // T))
+    sigma = torch.linalg.inv(model.sigma_inv)  # (T, F, F) lower Cholesky factors of Sigma_t
+    z = torch.randn(T, per_step, F, generator=generator, dtype=model.dtype).to(model.device)
+    f = model.mu[:, None, :] + torch.einsum("tij,tsj->tsi", sigma, z)  # (T, S, F)
+    f = f.reshape(-1, F)[:n]
+    q_seed = torch.maximum(torch.minimum(f[:, :d], kin.upper), kin.lower)  # (n, d)
+    T_world_virt = torch.linalg.inv(model.K_virt_inv(landmarks))  # (4, 4)
+    p_world = f[:, d:] @ T_world_virt[:3, :3].T + T_world_virt[:3, 3]  # (n, 3)
+    T_target = torch.eye(4, dtype=model.dtype, device=model.device).repeat(len(f), 1, 1)
+    T_target[:, :3, 3] = p_world
+    weights = torch.tensor([1, 1, 1, 0, 0, 0], dtype=model.dtype, device=model.device)
+    res = solve_ik(kin, T_target, q_seed, p_ee_tool=model.tool, weights=weights, q_rest=q_seed,
+                   config=IKConfig(max_iters=60, pos_tol=5e-3))
+    return res.q[res.success].detach().cpu().numpy()
+
+
+class _FKCache:
+    """Bounded LRU of FK per batch of configurations."""
+
+    def __init__(self, kin, max_rows: int):
+        self.kin, self.max_rows = kin, max_rows
+        self._store: OrderedDict[bytes, torch.Tensor] = OrderedDict()
+        self.rows = 0
+        self.hits = self.misses = 0
+
+    def __call__(self, Q: torch.Tensor) -> torch.Tensor:
+        key = Q.detach().cpu().numpy().tobytes()
+        hit = self._store.get(key)
+        if hit is not None:
+            self._store.move_to_end(key)
+            self.hits += 1
+            return hit
+        self.misses += 1
+        T = self.kin.fk(Q)
+        self._store[key] = T
+        self.rows += len(Q)
+        while self.rows > self.max_rows and self._store:
+            _, old = self._store.popitem(last=False)
+            self.rows -= len(old)
+        return T
+
+
+class TaskPlanner:
+    """Plans a learned task around the caller's obstacles.
+
+    Parameters
+    ----------
+    model : the learned ``TaskModel`` (its ``kin`` gives FK, limits and velocity limits).
+    collision_fn : ``q (d,) -> bool`` (True = in collision).
+    segment_fn : ``(q1, q2) -> bool`` (True = the straight joint-space segment collides).
+    sample_fn : ``n -> (n, d)`` configurations; uniform within the joint limits by default.
+    batch_collision_fn : optional ``(B, d) -> (B,) bool``.
+    settings : ``TaskPlannerSettings``.
+    """
+
+    def __init__(self, model: TaskModel, collision_fn, segment_fn, sample_fn=None,
+                 batch_collision_fn=None, settings: TaskPlannerSettings | None = None):
+        self.model = model
+        self.settings = settings = settings or TaskPlannerSettings()
+        self.kin = model.kin
+        self._gen = torch.Generator().manual_seed(settings.seed)
+        self._rng = np.random.default_rng(settings.seed)
+        if sample_fn is None:
+            def sample_fn(n, _kin=self.kin, _gen=self._gen):
+                return _kin.sample_uniform(n, generator=_gen).cpu().numpy()
+        self.sample_fn = sample_fn
+        self.collision_fn, self.segment_fn = collision_fn, segment_fn
+        self.batch_collision_fn = batch_collision_fn
+        self._fk = _FKCache(self.kin, settings.fk_cache_rows)
+        self._landmarks: torch.Tensor | None = None  # (Z, 4, 4) kept landmarks, model order
+        self._grown_for: list[np.ndarray] = []       # landmark positions (Z, 3) biased samples were made for
+        self.roadmap: Roadmap | None = None
+        self.planner: ClosedLoopPlanner | None = None
+        self._missing: str | None = None
+        self.stats = {"vertices_added": 0, "regrows": 0}
+
+    # -- landmarks ------------------------------------------------------------------------
+    def update_landmarks(self, names, T_world_landmarks) -> None:
+        """New sensed landmarks ``names (Z_all,)``, ``(Z_all, 4, 4)``; builds the roadmap on first use."""
+        try:
+            lm = self.model.select_landmarks(names, T_world_landmarks)
+        except ValueError as e:
+            self._missing = str(e)
+            if self.planner is not None:
+                self.planner.update_landmarks(np.full((1,), np.nan))
+            return
+        if not bool(torch.isfinite(lm).all()):
+            self._missing = "a task landmark pose is not finite (not sensed)"
+            if self.planner is not None:
+                self.planner.update_landmarks(np.full((1,), np.nan))
+            return
+        self._missing = None
+        self._landmarks = lm
+        if self.roadmap is None:
+            self._build()
+        else:
+            self._maybe_regrow()
+        self.planner.update_landmarks(lm)
+
+    def _step_nll_factory(self, landmarks: torch.Tensor):
+        model, fk = self.model, self._fk
+
+        def step_nll(Q):
+            Q = torch.as_tensor(Q, dtype=model.dtype, device=model.device)
+            return model.step_nll(Q, fk(Q), landmarks)
+        return step_nll
+
+    def _biased(self, n: int) -> np.ndarray:
+        return biased_configurations(self.model, self._landmarks, n, self._gen)
+
+    def _build(self) -> None:
+        s = self.settings
+        n_bias = int(round(s.bias_fraction * s.n_vertices))
+        B = self._biased(n_bias) if n_bias else np.empty((0, self.kin.dof))
+        self.roadmap = Roadmap.build(self.sample_fn, s.n_vertices, self.collision_fn, self.segment_fn,
+                                     biased_samples=B, batch_collision_fn=self.batch_collision_fn,
+                                     settings=s.roadmap)
+        self.stats["vertices_added"] = self.roadmap.n
+        self._grown_for.append(self._landmarks[:, :3, 3].cpu().numpy())
+        self.planner = ClosedLoopPlanner(
+            self.roadmap, self._step_nll_factory, self.model.log_trans.detach().cpu().numpy(),
+            dt=float(self.model.task.dt) if self.model.task else 0.1,
+            vmax=self.kin.velocity.cpu().numpy(), offsets=self.model.offsets, settings=s.planner)
+
+    def _maybe_regrow(self) -> None:
+        s = self.settings
+        pos = self._landmarks[:, :3, 3].cpu().numpy()
+        if min(np.abs(pos - g).max() for g in self._grown_for) <= s.regrow_distance or not s.regrow_vertices:
+            return
+        B = self._biased(s.regrow_vertices)
+        if len(B):
+            B = B[~self.roadmap.in_collision(B)]
+            self.roadmap.add_vertices(B, check=False)
+            self.stats["vertices_added"] += len(B)
+        self.stats["regrows"] += 1
+        self._grown_for.append(pos)
+        if len(self._grown_for) > 64:  # bounded: forget the oldest places
+            self._grown_for.pop(0)
+
+    # -- planning -------------------------------------------------------------------------
+    def plan(self, q_current, t_current: int = 0, q_goal=None) -> PlanResult:
+        """Best plan from ``(q_current, t_current)`` to the last time step (see ``ClosedLoopPlanner``)."""
+        if self.planner is None:
+            import math
+            import time
+            msg = self._missing or "no landmarks yet: call update_landmarks first"
+            d = self.kin.dof
+            return PlanResult(status="missing_landmark", configurations=np.empty((0, d)),
+                              time_steps=np.empty(0, int), vertices=np.empty(0, int), cost=math.inf,
+                              n_edges_evaluated=0, latency_s=0.0, stats={}, message=msg)
+        return self.planner.plan(q_current, t_current, q_goal)
