@@ -1,0 +1,257 @@
+"""The paper's comparisons (Tables I and II): every model variant on the same seeded scenarios.
+
+Variants (the paper's rows): learned tool + learned environment landmark; learned tool + manual
+(bowl); manual (hand-picked tip) + manual; arbitrary (gripper origin) + manual; and the learned
+model followed with obstacles ignored. Each is trained once by ``train.py`` (missing ones are
+trained on demand) into ``<models>/<tool>-<env>/``. Scenarios run in parallel worker processes,
+each with its own PyBullet client; finished runs are appended to ``runs.jsonl`` at once, so an
+interrupted evaluation resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sim.scenarios import Scenario, draw_scenarios
+
+__all__ = ["Variant", "VARIANTS", "EvalSettings", "run_one", "evaluate", "format_table"]
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@dataclass(frozen=True)
+class Variant:
+    name: str
+    tool: str           # learn | tip | gripper
+    env: str            # learn | bowl
+    obstacles: bool = True
+    label_tool: str = ""
+    label_env: str = ""
+
+    @property
+    def model_key(self) -> str:
+        return f"{self.tool}-{self.env}"
+
+
+VARIANTS = (
+    Variant("learned+learned", "learn", "learn", True, "Learned", "Learned"),
+    Variant("learned+manual", "learn", "bowl", True, "Learned", "Manual"),
+    Variant("manual+manual", "tip", "bowl", True, "Manual", "Manual"),
+    Variant("arbitrary+manual", "gripper", "bowl", True, "Arbitrary", "Manual"),
+    Variant("no-obstacle-avoidance", "learn", "learn", False, "(No obstacle", "avoidance)"),
+)
+
+
+@dataclass(frozen=True)
+class EvalSettings:
+    """roadmap_size: PRM* vertices per scenario; seed: base seed of the scenario set;
+    n_scenarios; workers: processes; video: write a GIF of the first scenario per variant."""
+
+    task: str = "powder"
+    n_scenarios: int = 10
+    seed: int = 0
+    roadmap_size: int = 1000
+    workers: int = 2
+    video: bool = False
+    variants: tuple = tuple(v.name for v in VARIANTS)
+
+
+def model_dir_for(models: Path, v: Variant) -> Path:
+    return models / v.model_key
+
+
+def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, seed: int) -> Path:
+    """Train the variant's model with ``train.py`` unless it exists."""
+    out = model_dir_for(models, v)
+    if (out / "model.pt").is_file() and (out / "config.json").is_file():
+        return out
+    cmd = [sys.executable, str(ROOT / "train.py"), "--task", task, "--tool", v.tool, "--env", v.env,
+           "--out", str(out), "--seed", str(seed)]
+    if demos is not None:
+        cmd += ["--demos", str(demos)]
+    print(f"[evaluate] training {v.model_key}: {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
+    subprocess.run(cmd, check=True, cwd=ROOT)
+    return out
+
+
+def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roadmap_size: int,
+            video_path: str | None = None) -> dict:
+    """One scenario with one variant, in this process. Returns a JSON-ready dict."""
+    import torch
+
+    from lfd.kinematics import KinematicModel
+    from lfd.model import TaskModel
+    from lfd.task_planner import TaskPlanner, TaskPlannerSettings
+    from sim.collision import make_collision_fns
+    from sim.execute import ExecSettings, execute_plan
+    from sim.world import World
+
+    torch.set_num_threads(1)
+    tic = time.perf_counter()
+    model = TaskModel.load(model_dir)
+    model.kin = KinematicModel.from_spec(model.robot, dtype=model.dtype)
+    with World(task, scenario=scenario.placements) as world:
+        fns = make_collision_fns(world, obstacles=variant.obstacles)
+        planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn,
+                              batch_collision_fn=fns.batch_collision_fn,
+                              settings=TaskPlannerSettings(n_vertices=roadmap_size, seed=scenario.seed))
+        frames = [] if video_path else None
+        res = execute_plan(world, planner, scenario,
+                           ExecSettings(frame_every=24 if video_path else 0), frames=frames)
+        if video_path and frames:
+            import imageio.v2 as imageio
+            imageio.mimsave(video_path, frames[::2], duration=0.2, loop=0)
+    out = res.to_dict()
+    out.update(scenario=scenario.seed, variant=variant.name, wall_s=time.perf_counter() - tic,
+               roadmap_vertices=planner.roadmap.n if planner.roadmap is not None else 0)
+    return out
+
+
+def _pct(values, q) -> float:
+    return float(np.percentile(values, q)) if len(values) else math.nan
+
+
+def summarize(runs: list[dict], variant: Variant, learning_time_s: float) -> dict:
+    init = [r["initial_ms"] for r in runs if not math.isnan(r["initial_ms"])]
+    rep = [x for r in runs for x in r["replan_ms"]]
+    return {
+        "tool_landmark": variant.label_tool, "env_landmark": variant.label_env,
+        "success_rate": float(np.mean([r["success"] for r in runs])) if runs else math.nan,
+        "n_scenarios": len(runs),
+        "collisions": int(sum(bool(r["contacts"]) for r in runs)),
+        "mean_fraction_in_bowl": float(np.mean([r["fraction_in_bowl"] for r in runs])) if runs else math.nan,
+        "learning_time_s": learning_time_s,
+        "initial_ms": {"median": _pct(init, 50), "p95": _pct(init, 95)},
+        "replan_ms": {"median": _pct(rep, 50), "p95": _pct(rep, 95)},
+        "scenarios": [{"scenario": r["scenario"], "success": r["success"], "reason": r["reason"],
+                       "fraction_in_bowl": r["fraction_in_bowl"]} for r in sorted(runs, key=lambda r: r["scenario"])],
+    }
+
+
+def format_table(results: dict, task: str) -> str:
+    head = f"{'Tool landmark':<14} {'Environment landmark':<21} {'Success':>8} {'Learning':>9} " \
+           f"{'Plan (init)':>12} {'Replan':>9}"
+    lines = [f"{task}: success rate over {max((v['n_scenarios'] for v in results.values()), default=0)} "
+             f"scenarios", head, "-" * len(head)]
+    for name, v in results.items():
+        rep = v["replan_ms"]["median"]
+        lines.append(f"{v['tool_landmark']:<14} {v['env_landmark']:<21} {v['success_rate']:>8.0%} "
+                     f"{v['learning_time_s']:>8.1f}s {v['initial_ms']['median']:>10.0f}ms "
+                     f"{'-' if math.isnan(rep) else f'{rep:.0f}ms':>9}")
+    return "\n".join(lines)
+
+
+def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | None = None,
+             progress=None) -> dict:
+    """Run every variant on every scenario; write ``results.json``; return it."""
+    by_name = {v.name: v for v in VARIANTS}
+    unknown = [n for n in settings.variants if n not in by_name]
+    if unknown:
+        raise ValueError(f"unknown variant(s) {unknown}; known: {list(by_name)}")
+    variants = [by_name[n] for n in settings.variants]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    learn_s = {}
+    for v in variants:
+        md = ensure_model(settings.task, models, demos, v, settings.seed)
+        summary = md / "summary.json"
+        learn_s[v.name] = json.loads(summary.read_text()).get("learning_time_s", math.nan) \
+            if summary.is_file() else math.nan
+    scenarios = draw_scenarios(settings.task, settings.n_scenarios, settings.seed)
+    log = out_dir / "runs.jsonl"
+    done = {}
+    if log.is_file():
+        for line in log.read_text().splitlines():
+            try:
+                r = json.loads(line)
+                done[(r["variant"], r["scenario"])] = r
+            except (ValueError, KeyError):
+                continue  # a line cut by an interruption
+    jobs = []
+    for v in variants:
+        for i, sc in enumerate(scenarios):
+            if (v.name, sc.seed) in done:
+                continue
+            video = str(out_dir / f"{settings.task}_{v.name}_scenario{sc.seed}.gif") \
+                if settings.video and i == 0 else None
+            jobs.append((settings.task, sc, v, str(model_dir_for(models, v)), settings.roadmap_size, video))
+    total = len(variants) * len(scenarios)
+    bar = progress(total=total, initial=total - len(jobs)) if progress else None
+    with log.open("a") as fh:
+        if settings.workers <= 1:
+            for job in jobs:
+                r = run_one(*job)
+                fh.write(json.dumps(r) + "\n")
+                fh.flush()
+                done[(r["variant"], r["scenario"])] = r
+                if bar:
+                    bar.update(1)
+        else:
+            ctx_env = dict(os.environ, OMP_NUM_THREADS="1")
+            os.environ.update(ctx_env)
+            with ProcessPoolExecutor(max_workers=settings.workers) as pool:
+                futures = [pool.submit(run_one, *job) for job in jobs]
+                for f in as_completed(futures):
+                    r = f.result()
+                    fh.write(json.dumps(r) + "\n")
+                    fh.flush()
+                    done[(r["variant"], r["scenario"])] = r
+                    if bar:
+                        bar.update(1)
+    if bar:
+        bar.close()
+    seeds = {sc.seed for sc in scenarios}
+    results = {v.name: summarize([r for (n, s), r in done.items() if n == v.name and s in seeds], v,
+                                 learn_s[v.name]) for v in variants}
+    payload = {"task": settings.task, "base_seed": settings.seed, "n_scenarios": settings.n_scenarios,
+               "roadmap_size": settings.roadmap_size, "variants": results,
+               "scenario_set": [sc.to_dict() for sc in scenarios]}
+    tmp = out_dir / "results.json.tmp"
+    tmp.write_text(json.dumps(payload, indent=2) + "\n")
+    tmp.replace(out_dir / "results.json")
+    return payload
+
+
+def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int, gui: bool = False,
+                  execute: bool = False, progress=None) -> tuple[dict, object, object]:
+    """Build the roadmap in the scenario's world, plan once from home (and optionally execute).
+
+    Returns ``(report, plan_result, model)``.
+    """
+    from lfd.kinematics import KinematicModel
+    from lfd.model import TaskModel
+    from lfd.task_planner import TaskPlanner, TaskPlannerSettings
+    from sim import layout as L
+    from sim.collision import make_collision_fns
+    from sim.execute import execute_plan
+    from sim.world import World
+
+    model = TaskModel.load(model_dir)
+    model.kin = KinematicModel.from_spec(model.robot, dtype=model.dtype)
+    report = {"scenario": scenario.to_dict()}
+    with World(scenario.task, gui=gui, scenario=scenario.placements) as world:
+        fns = make_collision_fns(world, obstacles=True)
+        tic = time.perf_counter()
+        planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn,
+                              batch_collision_fn=fns.batch_collision_fn,
+                              settings=TaskPlannerSettings(n_vertices=roadmap_size, seed=scenario.seed))
+        names, poses = world.sensed_landmarks()
+        planner.update_landmarks(names, poses)
+        report["roadmap_build_s"] = time.perf_counter() - tic
+        res = planner.plan(L.HOME_Q, 0)
+        report.update(status=res.status, message=res.message, cost=res.cost,
+                      waypoints=int(len(res.configurations)), latency_ms=res.latency_s * 1e3,
+                      edges_evaluated=res.n_edges_evaluated, roadmap_vertices=planner.roadmap.n)
+        if execute and res.ok:
+            run = execute_plan(world, planner, scenario)
+            report["execution"] = run.to_dict()
+    return report, res, model
