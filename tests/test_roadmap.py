@@ -16,7 +16,8 @@ def in_box(q):
 
 def segment_hits_box(q1, q2, step=0.005):
     m = max(2, int(np.ceil(np.linalg.norm(q2 - q1) / step)) + 1)
-    return any(in_box(q1 + (q2 - q1) * s) for s in np.linspace(0.0, 1.0, m))
+    P = q1 + (q2 - q1) * np.linspace(0.0, 1.0, m)[:, None]
+    return bool(np.any(np.all((P >= BOX_LO) & (P <= BOX_HI), axis=1)))
 
 
 def uniform(rng, d=2):

@@ -1,0 +1,311 @@
+"""Spatiotemporal planning: lazy A* on the implicit product graph against plain networkx Dijkstra on
+a fully evaluated product graph built here independently; replanning; statuses; bounded caches."""
+
+import math
+
+import networkx as nx
+import numpy as np
+import pytest
+import torch
+
+from lfd.planner import ClosedLoopPlanner, PlannerSettings
+from lfd.roadmap import Roadmap, k_prm_star
+from lfd.stcost import CostSettings, SpatiotemporalCosts, segment_nodes
+
+# ---------------------------------------------------------------- toy world (d = 2)
+BOX_LO, BOX_HI = np.array([0.15, 0.35]), np.array([0.45, 0.9])  # cuts the arc of the means
+DT, T2 = 0.1, 8
+VMAX2 = np.array([1.0, 2.0])
+
+
+def in_box(q):
+    return bool(np.all(q >= BOX_LO) and np.all(q <= BOX_HI))
+
+
+def segment_hits_box(q1, q2, step=0.005):
+    m = max(2, int(np.ceil(np.linalg.norm(q2 - q1) / step)) + 1)
+    P = q1 + (q2 - q1) * np.linspace(0.0, 1.0, m)[:, None]
+    return bool(np.any(np.all((P >= BOX_LO) & (P <= BOX_HI), axis=1)))
+
+
+def arc_means(T, shift=0.0):
+    th = np.linspace(np.pi, 0.0, T) + shift
+    return np.stack([0.7 * np.cos(th), 0.7 * np.sin(th)], axis=1)  # (T, 2)
+
+
+def gaussian_factory(sigma=0.15):
+    """a_hat = the per-step means (T, d); step_nll = Gaussian nll (negative near the means)."""
+    def factory(a_hat):
+        mu = torch.as_tensor(np.asarray(a_hat, dtype=float))
+        const = mu.shape[1] * math.log(math.sqrt(2 * math.pi) * sigma)
+
+        def step_nll(Q):
+            return 0.5 * ((Q[:, None, :] - mu[None]) ** 2).sum(-1) / sigma ** 2 + const
+        return step_nll
+    return factory
+
+
+def log_trans_table(T, p=(0.3, 0.5, 0.2)):
+    return np.log(np.tile(np.asarray(p), (T, 1)))
+
+
+@pytest.fixture(scope="module")
+def toy():
+    rng = np.random.default_rng(0)
+    rm = Roadmap.build(lambda n: rng.uniform(-1.0, 1.0, (n, 2)), 180, in_box, segment_hits_box)
+    return rm
+
+
+# ---------------------------------------------------------------- independent reference
+def reference_graph(rm, step_nll, log_trans, dt, vmax, q_start, quad_dt=None, floor=None,
+                    q_goal=None, seg=segment_hits_box):
+    """The fully evaluated, eagerly collision-checked product graph, nodes ((v | "s" | "g"), t)."""
+    T = log_trans.shape[0]
+    quad_dt = quad_dt or dt
+    V = np.array(rm.vertices)
+    n = len(V)
+    L = lambda Q: step_nll(torch.as_tensor(Q)).numpy()  # noqa: E731
+    LV = L(V)
+    s = min(0.0, LV.min() if floor is None else floor)
+    ell = lambda raw: np.maximum(raw - s, 0.0)  # noqa: E731
+    pos = {v: V[v] for v in range(n)}
+    pos["s"] = q_start
+    k = k_prm_star(n + 1, V.shape[1])
+    edges = [(u, w) for u, w in rm.graph.edges if not seg(V[u], V[w])]
+    nearest = lambda q: np.argsort(np.linalg.norm(V - q, axis=1))[:k]  # noqa: E731
+    edges += [("s", int(j)) for j in nearest(q_start) if not seg(q_start, V[j])]
+    if q_goal is not None:
+        pos["g"] = q_goal
+        edges += [("g", int(j)) for j in nearest(q_goal) if not seg(q_goal, V[j])]
+        if not seg(q_start, q_goal):
+            edges.append(("s", "g"))
+    G = nx.DiGraph()
+    for u, w in edges:
+        a, b = pos[u], pos[w]
+        tau = np.max(np.abs(b - a) / vmax)
+        m = max(1, math.ceil(tau / quad_dt - 1e-9))
+        vals = ell(L(a + (b - a) * np.linspace(0, 1, m + 1)[:, None]))  # (m + 1, T)
+        mean = (vals[0] / 2 + vals[1:-1].sum(0) + vals[-1] / 2) / m
+        for t in range(T):
+            c = tau / dt * (-log_trans[t, 0] + mean[t])
+            G.add_edge((u, t), (w, t), weight=c)
+            G.add_edge((w, t), (u, t), weight=c)
+    for v, q in pos.items():
+        lq = ell(L(q[None])[0])
+        for t in range(T):
+            for k_ in (1, 2):
+                if t + k_ < T:
+                    G.add_edge((v, t), (v, t + k_), weight=-log_trans[t, k_] + lq[t + k_])
+        G.add_edge((v, T - 1), "sink", weight=0.0)
+    return G
+
+
+def reference_cost(rm, step_nll, log_trans, dt, vmax, q_start, t_start, q_goal=None, **kw):
+    """Plain nx.dijkstra on the fully evaluated product graph."""
+    G = reference_graph(rm, step_nll, log_trans, dt, vmax, q_start, q_goal=q_goal, **kw)
+    target = "sink" if q_goal is None else ("g", log_trans.shape[0] - 1)
+    try:
+        return nx.dijkstra_path_length(G, ("s", t_start), target)
+    except nx.NetworkXNoPath:
+        return math.inf
+
+
+def make_planner(rm, means, heuristic=True, **cost_kw):
+    p = ClosedLoopPlanner(rm, gaussian_factory(), log_trans_table(len(means)), DT, VMAX2,
+                          settings=PlannerSettings(cost=CostSettings(heuristic=heuristic, **cost_kw)))
+    p.update_landmarks(means)
+    return p
+
+
+def assert_path_valid(res, rm):
+    assert res.status == "ok", res.message
+    P = res.configurations
+    for a, b in zip(P[:-1], P[1:]):
+        assert not segment_hits_box(a, b)
+    steps = np.diff(res.time_steps)
+    assert np.all((steps >= 0) & (steps <= 2)) and res.time_steps[-1] == T2 - 1
+    moved = np.any(P[1:] != P[:-1], axis=1)
+    assert np.all(steps[moved] == 0) and np.all(steps[~moved] > 0)  # one kind of edge at a time
+
+
+# ---------------------------------------------------------------- tests
+@pytest.mark.parametrize("heuristic", [True, False])
+def test_lazy_search_matches_dijkstra_on_the_full_product_graph(toy, heuristic):
+    means = arc_means(T2)
+    q0, t0 = np.array([-0.7, 0.05]), 0
+    planner = make_planner(toy, means, heuristic=heuristic)
+    res = planner.plan(q0, t0)
+    assert_path_valid(res, toy)
+    ref = reference_cost(toy, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2, q0, t0)
+    assert res.cost == pytest.approx(ref, rel=1e-9, abs=1e-9)
+    n_roadmap_edges = toy.graph.number_of_edges()
+    assert 0 < res.n_edges_evaluated <= n_roadmap_edges + 20
+
+
+def test_replan_after_landmark_move_matches_a_fresh_planner(toy):
+    planner = make_planner(toy, arc_means(T2))
+    q0 = np.array([-0.7, 0.05])
+    first = planner.plan(q0, 0)
+    again = planner.plan(q0, 0)
+    # only the per-plan edges of the start configuration are new
+    assert again.cost == first.cost and again.n_edges_evaluated <= toy.k(toy.n + 1)
+    for shift in (0.1, -0.2):
+        moved = arc_means(T2, shift)
+        planner.update_landmarks(moved)
+        res = planner.plan(q0, 2)
+        fresh = make_planner(toy, moved).plan(q0, 2)
+        ref = reference_cost(toy, gaussian_factory()(moved), log_trans_table(T2), DT, VMAX2, q0, 2)
+        assert res.cost == pytest.approx(fresh.cost, rel=1e-12)
+        assert res.cost == pytest.approx(ref, rel=1e-9)
+        assert_path_valid(res, toy)
+
+
+def test_goal_configuration_and_known_floor(toy):
+    means = arc_means(T2)
+    q0, qg = np.array([-0.7, 0.05]), np.array([0.7, 0.05])
+    floor = 2 * math.log(math.sqrt(2 * math.pi) * 0.15)  # the Gaussian's minimum: a true bound
+    planner = make_planner(toy, means, nll_floor=floor)
+    res = planner.plan(q0, 0, q_goal=qg)
+    assert_path_valid(res, toy)
+    np.testing.assert_array_equal(res.configurations[-1], qg)
+    assert res.vertices[-1] == -2 and res.vertices[0] == -1
+    ref = reference_cost(toy, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2, q0, 0,
+                         floor=floor, q_goal=qg)
+    assert res.cost == pytest.approx(ref, rel=1e-9)
+
+
+def test_heuristic_is_admissible(toy):
+    means = arc_means(T2)
+    costs = SpatiotemporalCosts(toy, log_trans_table(T2), DT, VMAX2)
+    costs.set_step_nll(gaussian_factory()(means))
+    costs.set_temporary({}, {})
+    costs.prepare()
+    G = reference_graph(toy, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2,
+                        np.array(toy.vertices[0]))
+    to_go = nx.single_source_dijkstra_path_length(G.reverse(copy=False), "sink")
+    for node, dist in to_go.items():  # exact cost-to-go from every node >= h(t)
+        if node != "sink":
+            assert costs.heuristic(node[1]) <= dist + 1e-9
+    assert costs.heuristic(T2 - 1) == 0.0 and costs.heuristic(0) > 0.0
+
+
+def test_edge_integral_converges_with_resolution():
+    """A quadratic step cost along a segment has a closed-form mean; the trapezoid error ~ 1/m^2."""
+    rm = Roadmap(2, lambda q: False, lambda a, b: False)
+    rm.add_vertices(np.array([[0.0, 0.0], [1.0, 0.5]]), check=False)
+    mu = torch.tensor([[0.3, 0.6]])  # T = 1 ... plus a second step
+    mu = torch.cat([mu, torch.tensor([[1.0, 0.0]])])
+    f = lambda Q: ((Q[:, None, :] - mu[None]) ** 2).sum(-1)  # noqa: E731  (>= 0: no shift)
+    a, b = np.array([0.0, 0.0]), np.array([1.0, 0.5])
+    exact_mean = [np.mean(np.sum((a + (b - a) * s[:, None] - m) ** 2, 1))
+                  for m, s in [(mu[0].numpy(), np.linspace(0, 1, 200001))] * 1]
+    errs = []
+    for quad_dt in (0.5, 0.1, 0.02):
+        c = SpatiotemporalCosts(rm, np.log([[1.0, 1e-300, 1e-300]] * 2), 0.1, [1.0, 1.0],
+                                settings=CostSettings(quad_dt=quad_dt, nll_floor=0.0))
+        c.set_step_nll(f)
+        c.set_temporary({}, {})
+        c.prepare()
+        nbrs, C = c.spatial(0)
+        tau = 1.0  # max |dq| / vmax
+        errs.append(abs(C[0, 0] - tau / 0.1 * exact_mean[0]))
+    assert errs[0] > errs[1] > errs[2] and errs[2] < 1e-3 * tau / 0.1
+    assert errs[1] / errs[2] == pytest.approx(25.0, rel=0.05)  # second order
+    assert segment_nodes(a, b, np.array([1.0, 1.0]), 0.1)[1].shape == (11, 2)
+
+
+def test_d7_random_matches_reference():
+    rng = np.random.default_rng(1)
+    d, T = 7, 6
+    rm = Roadmap.build(lambda n: rng.uniform(-1, 1, (n, d)), 120, lambda q: False,
+                       lambda a, b: False)
+    means = rng.uniform(-0.6, 0.6, (2, d))
+    mu = means[0] + (means[1] - means[0]) * np.linspace(0, 1, T)[:, None]
+    vmax = np.array([1.5] * 4 + [4.0] * 3)
+    f = gaussian_factory(0.3)
+    planner = ClosedLoopPlanner(rm, f, log_trans_table(T), DT, vmax)
+    planner.update_landmarks(mu)
+    q0 = rng.uniform(-1, 1, d)
+    res = planner.plan(q0, 0)
+    assert res.ok and res.configurations.shape == (len(res.time_steps), d)
+    ref = reference_cost(rm, f(mu), log_trans_table(T), DT, vmax, q0, 0, seg=lambda a, b: False)
+    assert res.cost == pytest.approx(ref, rel=1e-9)
+
+
+def test_statuses(toy):
+    means = arc_means(T2)
+    q0 = np.array([-0.7, 0.05])
+    p = ClosedLoopPlanner(toy, gaussian_factory(), log_trans_table(T2), DT, VMAX2)
+    assert p.plan(q0, 0).status == "missing_landmark"  # no landmarks yet
+    p.update_landmarks(np.full_like(means, np.nan))
+    assert p.plan(q0, 0).status == "missing_landmark"
+
+    def needs_bowl(a_hat):
+        return gaussian_factory()(a_hat["bowl"])
+    p2 = ClosedLoopPlanner(toy, needs_bowl, log_trans_table(T2), DT, VMAX2)
+    p2.update_landmarks({"cup": means})
+    assert p2.plan(q0, 0).status == "missing_landmark"
+    p2.update_landmarks({"bowl": means})
+    assert p2.plan(q0, 0).ok
+
+    p.update_landmarks(means)
+    assert p.plan(np.array([0.3, 0.5]), 0).status == "start_in_collision"
+    r = p.plan(q0, 0, q_goal=np.array([0.3, 0.5]))
+    assert r.status == "goal_in_collision" and r.configurations.shape == (0, 2)
+    stuck = log_trans_table(T2)
+    stuck[3, 1:] = stuck[2, 2] = -np.inf  # no way past step 3
+    p3 = ClosedLoopPlanner(toy, gaussian_factory(), stuck, DT, VMAX2)
+    p3.update_landmarks(means)
+    assert p3.plan(q0, 0).status == "no_path" and p3.plan(q0, 4).ok
+    tight = ClosedLoopPlanner(toy, gaussian_factory(), log_trans_table(T2), DT, VMAX2,
+                              settings=PlannerSettings(max_expansions=3))
+    tight.update_landmarks(means)
+    assert tight.plan(q0, 0).status == "budget_exceeded"
+    bad = ClosedLoopPlanner(toy, lambda a: (lambda Q: torch.full((len(Q), T2), float("nan"))),
+                            log_trans_table(T2), DT, VMAX2)
+    bad.update_landmarks(means)
+    assert bad.plan(q0, 0).status == "invalid_cost"
+    with pytest.raises(ValueError, match="q_current"):
+        p.plan(np.zeros(3), 0)
+    with pytest.raises(ValueError, match="t_current"):
+        p.plan(q0, T2)
+
+
+def test_model_object_protocol(toy):
+    class Model:
+        def set_landmarks(self, a_hat):
+            self.fn = gaussian_factory()(a_hat)
+
+        def step_nll(self, Q):
+            return self.fn(Q)
+
+    p = ClosedLoopPlanner(toy, Model(), log_trans_table(T2), DT, VMAX2)
+    p.update_landmarks(arc_means(T2))
+    assert p.plan(np.array([-0.7, 0.05]), 0).ok
+
+
+def test_caches_stay_bounded_over_many_replans(toy):
+    planner = make_planner(toy, arc_means(T2))
+    rng = np.random.default_rng(5)
+    n_edges = toy.graph.number_of_edges()
+    for i in range(60):
+        if i % 3 == 0:
+            planner.update_landmarks(arc_means(T2, rng.uniform(-0.2, 0.2)))
+        q = rng.uniform(-1, 1, 2)
+        planner.plan(q, int(rng.integers(0, T2)))
+        c = planner.costs
+        assert len(c._edge) <= n_edges and len(c._out) <= toy.n
+        assert len(c._temp) <= 2 and len(c._tedge) <= 2 * toy.k(toy.n + 1) + 1
+    assert toy.n == 180
+
+
+def test_roadmap_growth_between_plans(toy):
+    rng = np.random.default_rng(6)
+    rm = Roadmap.build(lambda n: rng.uniform(-1, 1, (n, 2)), 120, in_box, segment_hits_box)
+    means, q0 = arc_means(T2), np.array([-0.7, 0.05])
+    planner = make_planner(rm, means)
+    before = planner.plan(q0, 0)
+    rm.add_vertices(rng.uniform(-1, 1, (60, 2)))
+    after = planner.plan(q0, 0)
+    ref = reference_cost(rm, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2, q0, 0)
+    assert before.ok and after.cost == pytest.approx(ref, rel=1e-9)  # the floor may move: no order
