@@ -1,0 +1,116 @@
+"""Demonstrations drawn from a known task model, for tests and measurements of the learner.
+
+A real ``KinematicModel`` (Baxter's left arm) is driven by batched damped-least-squares IK
+so that the tool point ``tool`` (end-effector frame) lands at targets drawn, per time step,
+from known Gaussians ``N(m_t, C_t)`` in the frame of one landmark (``true_landmark``) among
+``Z``; the null space pulls each configuration towards a per-step nominal configuration
+plus a per-demonstration offset. Optionally the first ``fixed_steps`` steps are fixed in the
+robot's (world) frame instead, like the start above the source container.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from lfd.demos import DemoSet, Demonstration
+from lfd.robots import BAXTER_LEFT
+
+__all__ = ["SyntheticTruth", "make_synthetic", "random_rotation"]
+
+Q_START = np.array([0.3, -0.6, -0.3, 1.4, 0.3, 0.8, 0.0])
+Q_END = np.array([-0.1, -0.2, 0.2, 1.2, -0.4, 0.6, 0.9])
+
+
+@dataclass(frozen=True)
+class SyntheticTruth:
+    tool: np.ndarray  # (3,)
+    true_landmark: int
+    means: np.ndarray  # (T, 3) tool point in the landmark frame (world frame for fixed steps)
+    stds: np.ndarray  # (T, 3) per-axis standard deviations
+    alignments: tuple  # per demo (S_m,) 0-based steps
+    fixed_steps: int
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    q = rng.normal(size=4)
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def _ik(kin, q0, q_nom, targets, tool, iters=60, damping=0.02, null_gain=0.3):
+    """Batched DLS IK of the tool point: ``q0, q_nom (B, d)``, ``targets (B, 3)`` -> q, error."""
+    q = q0.clone()
+    tool_t = torch.as_tensor(tool, dtype=q.dtype)
+    eye_d = torch.eye(q.shape[1], dtype=q.dtype)
+    for _ in range(iters):
+        T = kin.fk(q)
+        r = T[:, :3, :3] @ tool_t  # (B, 3)
+        p = r + T[:, :3, 3]
+        e = targets - p
+        J = kin.jacobian(q)  # (B, 6, d)
+        skew = torch.zeros(q.shape[0], 3, 3, dtype=q.dtype)
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -r[:, 2], r[:, 1], -r[:, 0]
+        skew = skew - skew.transpose(1, 2)
+        Jp = J[:, :3] - skew @ J[:, 3:]  # (B, 3, d): d/dq of p = t + R tool
+        JJt = Jp @ Jp.transpose(1, 2) + damping ** 2 * torch.eye(3, dtype=q.dtype)
+        pinv = Jp.transpose(1, 2) @ torch.linalg.inv(JJt)  # (B, d, 3)
+        null = eye_d - pinv @ Jp
+        dq = (pinv @ e[:, :, None])[..., 0] + null_gain * (null @ (q_nom - q)[:, :, None])[..., 0]
+        q = torch.clamp(q + dq, kin.lower, kin.upper)
+    T = kin.fk(q)
+    err = (targets - (T[:, :3, :3] @ tool_t + T[:, :3, 3])).norm(dim=1)
+    return q, err
+
+
+def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5, true_landmark=0,
+                   tool=(0.03, -0.02, 0.15), fixed_steps=0, rotations=False, seed=0,
+                   task=None, demo_spread=0.1, std_scale=1.0) -> tuple[DemoSet, SyntheticTruth]:
+    """A ``DemoSet`` and the ``SyntheticTruth`` it was drawn from (see the module docstring)."""
+    rng = np.random.default_rng(seed)
+    T = time_steps
+    s = np.linspace(0, 1, T)[:, None]
+    # approach from 25 cm above and behind the landmark, end 5 cm above it
+    means = (1 - s) * np.array([-0.10, 0.05, 0.25]) + s * np.array([0.0, 0.0, 0.05])
+    stds = std_scale * np.tile([0.006, 0.008, 0.005], (T, 1)) * (1 + 1.0 * (1 - s))
+    if fixed_steps:
+        means[:fixed_steps] = np.array([0.55, 0.55, 0.25])  # world frame: above a "source"
+        stds[:fixed_steps] = [0.01, 0.01, 0.01]
+    q_nom_steps = (1 - s) * Q_START + s * Q_END  # (T, d)
+    tool = np.asarray(tool, dtype=float)
+    lms, aligns, all_targets, all_nom = [], [], [], []
+    for m in range(n_demos):
+        counts = rng.integers(samples_per_step[0], samples_per_step[1] + 1, size=T)
+        align = np.repeat(np.arange(T), counts)
+        lm = np.tile(np.eye(4), (Z, 1, 1))
+        lm[:, 0, 3] = rng.uniform(0.55, 0.95, Z)
+        lm[:, 1, 3] = rng.uniform(-0.1, 0.6, Z)
+        lm[:, 2, 3] = rng.uniform(-0.15, 0.15, Z)
+        if rotations:
+            for z in range(Z):
+                lm[z, :3, :3] = random_rotation(rng)
+        x = means[align] + stds[align] * rng.normal(size=(len(align), 3))  # (S, 3)
+        targets = x.copy()
+        rel = align >= fixed_steps
+        L = lm[true_landmark]
+        targets[rel] = x[rel] @ L[:3, :3].T + L[:3, 3]
+        q_nom = q_nom_steps[align] + demo_spread * rng.normal(size=7) + 0.02 * rng.normal(size=(len(align), 7))
+        lms.append(lm), aligns.append(align), all_targets.append(targets), all_nom.append(q_nom)
+    q_nom = torch.as_tensor(np.concatenate(all_nom))
+    q, err = _ik(kin, q_nom, q_nom, torch.as_tensor(np.concatenate(all_targets)), tool)
+    if float(err.max()) > 2e-3:
+        raise RuntimeError(f"synthetic IK did not converge (max error {float(err.max()):.3g} m)")
+    splits = np.cumsum([len(a) for a in aligns])[:-1]
+    demos = [Demonstration(q=qm, dt=0.1, landmarks=lm, name=f"synth_{m:02d}")
+             for m, (qm, lm) in enumerate(zip(np.split(q.numpy(), splits), lms))]
+    names = tuple(["bowl"] + [f"lm{i}" for i in range(1, Z)])
+    if true_landmark != 0:
+        names = tuple(f"lm{i}" for i in range(Z))
+    ds = DemoSet(demos=tuple(demos), joint_names=BAXTER_LEFT.joint_names, landmark_names=names,
+                 robot=BAXTER_LEFT, task=task)
+    return ds, SyntheticTruth(tool=tool, true_landmark=true_landmark, means=means, stds=stds,
+                              alignments=tuple(aligns), fixed_steps=fixed_steps)
