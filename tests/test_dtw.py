@@ -1,0 +1,71 @@
+"""DTW E-step against a brute-force enumeration of monotone alignments."""
+
+import itertools
+
+import numpy as np
+import pytest
+import torch
+
+from lfd.dtw import alignment_step_counts, dtw_align, min_samples, random_alignment
+from lfd.priors import estimate_log_trans
+
+
+def _brute_force(cost, trans, offsets):
+    S, T = cost.shape
+    best, best_path = np.inf, None
+    for incs in itertools.product(range(len(offsets)), repeat=S - 1):
+        path = [0]
+        total = cost[0, 0]
+        for s, k in enumerate(incs, start=1):
+            t = path[-1] + offsets[k]
+            if t >= T:
+                break
+            total += trans[path[-1], k] + cost[s, t]
+            path.append(t)
+        else:
+            if path[-1] == T - 1 and total < best:
+                best, best_path = total, path
+    return best, best_path
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_dtw_equals_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    T, offsets = 4, (0, 1, 2)
+    lengths = [5, 7, 3, 6]
+    cost = rng.normal(size=(len(lengths), 7, T)) ** 2
+    trans = -2 * np.log(rng.dirichlet(np.ones(3), size=T))
+    trans[T - 1, 1:] = np.inf
+    trans[T - 2, 2] = np.inf
+    align, values = dtw_align(torch.as_tensor(cost), lengths, torch.as_tensor(trans), offsets)
+    for m, n in enumerate(lengths):
+        best, path = _brute_force(cost[m, :n], trans, offsets)
+        assert values[m].item() == pytest.approx(best, rel=1e-12)
+        assert align[m].tolist() == path
+        assert align[m][0] == 0 and align[m][-1] == T - 1
+
+
+def test_dtw_rejects_too_short_demonstrations():
+    cost = torch.zeros(1, 3, 8, dtype=torch.float64)
+    with pytest.raises(ValueError, match="fewer than 5 samples"):
+        dtw_align(cost, [3], torch.zeros(8, 3, dtype=torch.float64))
+    assert min_samples(24) == 13
+
+
+@pytest.mark.parametrize("n", [13, 24, 200])
+def test_random_alignment_is_monotone_and_complete(n):
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        a = random_alignment(n, 24, rng)
+        assert len(a) == n and a[0] == 0 and a[-1] == 23
+        assert set(np.diff(a)) <= {0, 1, 2}
+
+
+def test_transition_estimate_keeps_a_floor_and_forbids_leaving():
+    a = [np.array([0, 0, 0, 1, 2, 3, 3]), np.array([0, 1, 1, 2, 3])]
+    counts = alignment_step_counts(a, 4)
+    assert counts[0].tolist() == [2, 2, 0] and counts[3].tolist() == [1, 0, 0]
+    p = estimate_log_trans(a, 4, (0, 1, 2), floor=0.01).exp().numpy()
+    assert np.allclose(p.sum(1), 1)
+    assert (p[:2] >= 0.0099).all()  # every permitted transition kept possible
+    assert p[3].tolist() == [1.0, 0.0, 0.0] and p[2, 2] == 0.0

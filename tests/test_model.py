@@ -1,0 +1,148 @@
+"""TaskModel: Eq. 2/3 kernels against references, gradients, save/load."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lfd.model import (ModelFormatError, TaskModel, features_tensor, landmarks_inverse_tensor,
+                       logdet_tensor, step_nll_tensor, virtual_inverse_tensor)
+from lfd.robots import BAXTER_LEFT
+from lfd.synthetic import random_rotation
+from lfd.tasks import POWDER
+
+
+def _random_sigma_inv(T, F, gen, dtype):
+    A = torch.randn(T, F, F, generator=gen, dtype=torch.float64)
+    Sigma = A @ A.transpose(1, 2) + 0.5 * torch.eye(F, dtype=torch.float64)
+    L = torch.linalg.cholesky(Sigma)
+    return Sigma.to(dtype), torch.linalg.inv(L).to(dtype)
+
+
+def _poses(n, rng):
+    T = np.tile(np.eye(4), (n, 1, 1))
+    for i in range(n):
+        T[i, :3, :3] = random_rotation(rng)
+        T[i, :3, 3] = rng.normal(size=3)
+    return torch.as_tensor(T)
+
+
+@pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-9), (torch.float32, 2e-3)])
+def test_step_nll_is_twice_gaussian_nll_minus_constant(dtype, tol):
+    gen = torch.Generator().manual_seed(0)
+    T, F, N = 5, 10, 7
+    Sigma, sigma_inv = _random_sigma_inv(T, F, gen, dtype)
+    mu = torch.randn(T, F, generator=gen, dtype=torch.float64).to(dtype)
+    f = torch.randn(N, F, generator=gen, dtype=torch.float64).to(dtype)
+    got = step_nll_tensor(f, mu, sigma_inv)
+    ref = torch.stack([torch.distributions.MultivariateNormal(mu[t].double(), Sigma[t].double())
+                       .log_prob(f.double()) for t in range(T)], dim=1)
+    expected = -2 * ref - F * math.log(2 * math.pi)
+    assert got.shape == (N, T)
+    assert torch.allclose(got.double(), expected, rtol=tol, atol=tol * 10)
+    assert torch.allclose(logdet_tensor(sigma_inv).double(), torch.logdet(Sigma.double()), atol=tol * 10)
+
+
+def test_logdet_scale_scales_only_the_logdet_term():
+    gen = torch.Generator().manual_seed(1)
+    _, sigma_inv = _random_sigma_inv(3, 10, gen, torch.float64)
+    mu = torch.randn(3, 10, generator=gen, dtype=torch.float64)
+    f = torch.randn(4, 10, generator=gen, dtype=torch.float64)
+    a, b = step_nll_tensor(f, mu, sigma_inv, 1.0), step_nll_tensor(f, mu, sigma_inv, 0.5)
+    assert torch.allclose(a - b, 0.5 * logdet_tensor(sigma_inv)[None].expand(4, 3))
+
+
+def test_features_match_the_paper_definition():
+    rng = np.random.default_rng(0)
+    lm = _poses(3, rng)  # (Z, 4, 4)
+    T_ee = _poses(4, rng)
+    q = torch.randn(4, 7, dtype=torch.float64)
+    tool = torch.tensor([0.1, -0.2, 0.3], dtype=torch.float64)
+    env = torch.tensor([0.7, 0.5, -0.2], dtype=torch.float64)
+    K_inv = virtual_inverse_tensor(env, landmarks_inverse_tensor(lm)[None])[0]
+    f = features_tensor(q, T_ee, tool, K_inv)
+    ref_K = sum(env[i] * torch.linalg.inv(lm[i]) for i in range(3))
+    for n in range(4):
+        x = ref_K @ T_ee[n] @ torch.cat([tool, torch.ones(1, dtype=torch.float64)])
+        assert torch.allclose(f[n, 7:], x[:3], atol=1e-12)
+        assert torch.equal(f[n, :7], q[n])
+
+
+def test_features_gradients_match_finite_differences():
+    rng = np.random.default_rng(2)
+    lm_inv = landmarks_inverse_tensor(_poses(3, rng))[None].expand(5, 3, 4, 4)
+    T_ee = _poses(5, rng)
+    q = torch.randn(5, 7, dtype=torch.float64)
+
+    def fn(tool, env):
+        return features_tensor(q, T_ee, tool, virtual_inverse_tensor(env, lm_inv))
+
+    tool = torch.randn(3, dtype=torch.float64, requires_grad=True)
+    env = torch.randn(3, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(fn, (tool, env))
+    gen = torch.Generator().manual_seed(3)
+    _, si = _random_sigma_inv(4, 10, gen, torch.float64)
+    si = si.requires_grad_(True)
+    mu = torch.randn(4, 10, dtype=torch.float64, requires_grad=True)
+    f = torch.randn(6, 10, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(step_nll_tensor, (f, mu, si))
+
+
+def _model(Z=2, T=4):
+    gen = torch.Generator().manual_seed(5)
+    _, si = _random_sigma_inv(T, 10, gen, torch.float64)
+    lt = torch.log(torch.full((T, 3), 1 / 3, dtype=torch.float64))
+    env = torch.full((Z,), 1.0 / Z, dtype=torch.float64)
+    return TaskModel(torch.tensor([0.0, 0.0, 0.2], dtype=torch.float64), env,
+                     torch.randn(T, 10, generator=gen, dtype=torch.float64), si, lt,
+                     landmark_names=("bowl", "cup")[:Z], robot=BAXTER_LEFT, task=POWDER,
+                     all_landmark_names=("bowl", "cup", "vase"), covariance="block")
+
+
+def test_step_nll_computes_fk_when_no_pose_given():
+    m = _model()
+    q = torch.zeros(3, 7, dtype=torch.float64)
+    lm = torch.eye(4, dtype=torch.float64).expand(2, 4, 4)
+    a = m.step_nll(q, None, lm)
+    b = m.step_nll(q, m.kin.fk(q), lm)
+    assert a.shape == (3, 4)
+    assert torch.allclose(a, b)
+    with pytest.raises(ValueError, match=r"landmarks must have shape \(2, 4, 4\)"):
+        m.step_nll(q, None, lm[:1])
+    picked = m.select_landmarks(["vase", "cup", "bowl"], torch.stack([2 * torch.eye(4, dtype=torch.float64),
+                                                                      3 * torch.eye(4, dtype=torch.float64),
+                                                                      torch.eye(4, dtype=torch.float64)]))
+    assert picked[0, 0, 0] == 1 and picked[1, 0, 0] == 3
+
+
+def test_save_load_round_trip(tmp_path):
+    m = _model()
+    m.save(tmp_path)
+    state = torch.load(tmp_path / "model.pt", weights_only=True)
+    assert set(state) == {"tool", "env", "mu", "sigma_inv", "log_trans"}
+    back = TaskModel.load(tmp_path)
+    for k in ("tool", "env", "mu", "sigma_inv", "log_trans"):
+        assert torch.equal(getattr(back, k), getattr(m, k))
+    assert back.landmark_names == ("bowl", "cup")
+    assert back.all_landmark_names == ("bowl", "cup", "vase")
+    assert back.task == POWDER and back.robot == BAXTER_LEFT and back.covariance == "block"
+    q = torch.zeros(2, 7, dtype=torch.float64)
+    lm = torch.eye(4, dtype=torch.float64).expand(2, 4, 4)
+    assert torch.allclose(back.step_nll(q, None, lm), m.step_nll(q, None, lm))
+    f32 = TaskModel.load(tmp_path, dtype=torch.float32)
+    assert f32.mu.dtype == torch.float32
+
+
+def test_load_rejects_foreign_files(tmp_path):
+    with pytest.raises(ModelFormatError, match="missing config.json"):
+        TaskModel.load(tmp_path)
+    (tmp_path / "config.json").write_text(json.dumps({"format": "something-else"}))
+    torch.save({"a": torch.zeros(1)}, tmp_path / "model.pt")
+    with pytest.raises(ModelFormatError, match="not an lfd task model config"):
+        TaskModel.load(tmp_path)
+    _model().save(tmp_path)
+    (tmp_path / "model.pt").write_bytes(b"not a zip file")
+    with pytest.raises(ModelFormatError, match="cannot be read"):
+        TaskModel.load(tmp_path)
