@@ -1,0 +1,126 @@
+"""Collision closures: obstacles, table, self collision, segments, restored simulator state."""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as p
+import pytest
+
+from sim import layout as L
+from sim.collision import bisection_order, make_collision_fns
+
+
+@pytest.fixture(scope="module")
+def world(make_world):
+    return make_world("powder")  # with particles in the spoon: they must not count as obstacles
+
+
+@pytest.fixture(scope="module")
+def fns(world):
+    return make_collision_fns(world)
+
+
+@pytest.fixture(scope="module")
+def fns_no_obstacles(world):
+    return make_collision_fns(world, obstacles=False)
+
+
+@pytest.fixture
+def roll_under_gripper(world):
+    """The paper-towel roll placed right under the gripper at HOME_Q (its top reaches the hand)."""
+    q_saved = world.get_q()
+    world.set_q(L.HOME_Q)
+    xy = world.T_world_gripper()[:2, 3]
+    world.set_q(q_saved)
+    world.place_object("paper_towels", xy)
+    yield xy
+    world.remove_object("paper_towels")
+
+
+def snapshot_state(world):
+    """Everything a check could disturb: all joint states, tool pose, particle poses."""
+    c = world.client
+    joints = p.getJointStates(world.robot, range(p.getNumJoints(world.robot, physicsClientId=c)),
+                              physicsClientId=c)
+    return ([(s[0], s[1]) for s in joints], world.T_world_tool().tolist(),
+            [p.getBasePositionAndOrientation(b, physicsClientId=c) for b in world.particles.ids])
+
+
+def test_home_is_free(fns):
+    assert not fns.collision_fn(L.HOME_Q)
+
+
+def test_arm_through_paper_towels_collides(fns, fns_no_obstacles, roll_under_gripper):
+    assert fns.collision_fn(L.HOME_Q)
+    assert not fns_no_obstacles.collision_fn(L.HOME_Q)
+
+
+def test_segment_through_obstacle_rejected_though_ends_free(fns, fns_no_obstacles, roll_under_gripper):
+    q1, q2 = L.HOME_Q.copy(), L.HOME_Q.copy()
+    q1[0] -= 0.4  # swing the shoulder: the hand sweeps through the roll at the midpoint
+    q2[0] += 0.4
+    assert not fns.collision_fn(q1) and not fns.collision_fn(q2)
+    assert fns.segment_fn(q1, q2)
+    assert not fns_no_obstacles.segment_fn(q1, q2)
+    assert not fns.segment_fn(q1, q1 + 0.5 * (L.HOME_Q - q1) * 0.5)  # a free part of it
+
+
+def test_table_and_self_collision_without_obstacles(fns_no_obstacles):
+    q_table = L.HOME_Q.copy()
+    q_table[1] += 0.5  # lower the shoulder: the spoon goes into the table top
+    assert fns_no_obstacles.collision_fn(q_table)
+    q_self = np.array([-1.2, 0.2, 0.0, 1.4, 0.0, 1.5, 0.0])  # hand across the torso
+    assert fns_no_obstacles.collision_fn(q_self)
+
+
+def test_markers_and_particles_are_not_obstacles(world, fns):
+    world.set_q(L.HOME_Q)
+    world.move_object("marker_1", world.T_world_tool()[:3, 3])
+    try:
+        assert len(world.particles) > 0
+        assert not fns.collision_fn(L.HOME_Q)
+    finally:
+        world.move_object("marker_1", L.DEFAULT_XY["marker_1"])
+
+
+def test_joint_limits_checked_first(fns):
+    q = L.HOME_Q.copy()
+    q[3] = 3.0  # left_e1 upper limit is 2.618
+    assert fns.collision_fn(q)
+    assert fns.batch_collision_fn(q[None]).tolist() == [True]
+    assert fns.segment_fn(L.HOME_Q, q)
+
+
+def test_batch_equals_single(fns):
+    rng = np.random.default_rng(0)
+    Q = L.HOME_Q + rng.normal(0, 0.6, (40, 7))  # (40, 7), some outside the limits
+    batch = fns.batch_collision_fn(Q)
+    assert batch.shape == (40,) and batch.dtype == bool
+    assert batch.tolist() == [fns.collision_fn(q) for q in Q]
+    assert 0 < batch.sum() < 40
+
+
+def test_state_unchanged_after_checks(world, fns, roll_under_gripper):
+    q_other = L.HOME_Q + 0.05
+    world.set_q(q_other)
+    before = snapshot_state(world)
+    fns.collision_fn(L.HOME_Q)                       # in collision (the roll)
+    fns.collision_fn(q_other - 0.1)
+    fns.batch_collision_fn(np.stack([L.HOME_Q, q_other, q_other - 0.3]))
+    q1, q2 = L.HOME_Q.copy(), L.HOME_Q.copy()
+    q1[0] -= 0.4
+    q2[0] += 0.4
+    fns.segment_fn(q1, q2)
+    assert snapshot_state(world) == before
+    world.set_q(L.HOME_Q)
+
+
+def test_bisection_order_and_bad_input(world, fns):
+    assert bisection_order(4) == [0, 4, 2, 1, 3]
+    assert sorted(bisection_order(9)) == list(range(10))
+    with pytest.raises(ValueError, match=r"q must have shape \(7,\), got \(6,\)"):
+        fns.collision_fn(np.zeros(6))
+    with pytest.raises(ValueError, match=r"Q must have shape \(B, 7\)"):
+        fns.batch_collision_fn(np.zeros(7))
+    with pytest.raises(ValueError, match="resolution must be > 0"):
+        make_collision_fns(world, resolution=0.0)
