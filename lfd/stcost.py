@@ -76,7 +76,8 @@ class CostSettings:
 
 
 def segment_nodes(q1: np.ndarray, q2: np.ndarray, vmax: np.ndarray, quad_dt: float):
-    """Traversal time ``tau`` and the ``m + 1`` quadrature nodes ``(m + 1, d)`` of segment q1-q2."""
+    """Traversal time ``tau`` and the ``m + 1`` quadrature nodes ``(m + 1, d)`` of segment q1-q2
+    (the rule ``SpatiotemporalCosts`` applies, in vectorized form, to many edges at once)."""
     tau = float(np.max(np.abs(q2 - q1) / vmax))
     m = max(1, math.ceil(tau / quad_dt - 1e-9))
     s = np.linspace(0.0, 1.0, m + 1)[:, None]
@@ -202,7 +203,8 @@ class SpatiotemporalCosts:
             if v not in self._tempraw:
                 self._tempraw[v] = self._eval(self._temp[v][None])[0]
             return self._tempraw[v]
-        self._ensure_vertices([v])
+        if v >= self._vraw.shape[0] or np.isnan(self._vraw[v, 0]):
+            self._ensure_vertices([v])
         return self._vraw[v]
 
     def prepare(self) -> None:
@@ -278,36 +280,41 @@ class SpatiotemporalCosts:
     def _edge_table(self, v: int, nbrs: list[int]) -> np.ndarray:
         """Costs ``(len(nbrs), T)`` of edges ``v-w``; all missing ones evaluated in one call."""
         C = np.empty((len(nbrs), self.T))
-        todo = []
+        todo, keys = [], []
         for i, w in enumerate(nbrs):
             key = (v, w) if v < w else (w, v)
             vec = (self._tedge if key[0] < 0 else self._edge).get(key)
             if vec is None:
-                todo.append((i, w, key))
+                todo.append(i)
+                keys.append(key)
             else:
                 C[i] = vec
         if not todo:
             return C
-        self._ensure_vertices([w for _, w, _ in todo if w >= 0] + ([v] if v >= 0 else []))
-        segs, interior = [], []
-        for _, w, _ in todo:
-            tau, P = segment_nodes(self._pos(v), self._pos(w), self.vmax, self.quad_dt)
-            segs.append((tau, len(P) - 1))
-            interior.append(P[1:-1])
-        n_in = sum(len(P) for P in interior)
-        Lin = self.ell(self._eval(np.concatenate(interior, axis=0))) if n_in else None
-        self.counters["edges"] += len(todo)
-        ev = self.ell(self._raw(v))
-        self_cost = self.trans[:, 0]
-        row = 0
-        for (i, w, key), (tau, m) in zip(todo, segs):
-            total = 0.5 * (ev + self.ell(self._raw(w)))  # trapezoid: endpoints weigh 1/2
-            if m > 1:
-                total = total + Lin[row:row + m - 1].sum(axis=0)
-                row += m - 1
-            with np.errstate(invalid="ignore"):
-                vec = (tau / self.dt) * (self_cost + total / m)
-            vec[np.isnan(vec)] = np.inf  # tau = 0 with a forbidden self-transition
+        W = [nbrs[i] for i in todo]
+        self._ensure_vertices([w for w in W if w >= 0] + ([v] if v >= 0 else []))
+        qv = self._pos(v)
+        QW = np.array([self._pos(w) for w in W])  # (E, d)
+        tau = np.max(np.abs(QW - qv) / self.vmax, axis=1)  # (E,) traversal times
+        m = np.maximum(1, np.ceil(tau / self.quad_dt - 1e-9)).astype(int)  # (E,) sub-intervals
+        n_in = m - 1
+        sums = np.zeros((len(W), self.T))  # sum of ell over each edge's interior nodes
+        if n_in.sum():
+            edge = np.repeat(np.arange(len(W)), n_in)  # interior node -> edge
+            first = np.cumsum(n_in) - n_in  # index of each edge's first interior node
+            frac = (np.arange(len(edge)) - first[edge] + 1) / m[edge]  # (N,) in (0, 1)
+            P = qv + (QW[edge] - qv) * frac[:, None]  # (N, d)
+            Lin = self.ell(self._eval(P))  # (N, T)
+            has = n_in > 0
+            sums[has] = np.add.reduceat(Lin, first[has], axis=0)
+        self.counters["edges"] += len(W)
+        ev = self.ell(self._raw(v))  # (T,)
+        EW = self.ell(self._vraw[W] if min(W) >= 0 else np.array([self._raw(w) for w in W]))
+        mean = (0.5 * (ev[None] + EW) + sums) / m[:, None]  # trapezoid rule, (E, T)
+        with np.errstate(invalid="ignore"):
+            vecs = (tau / self.dt)[:, None] * (self.trans[None, :, 0] + mean)
+        vecs[np.isnan(vecs)] = np.inf  # tau = 0 with a forbidden self-transition
+        for i, key, vec in zip(todo, keys, vecs):
             (self._tedge if key[0] < 0 else self._edge)[key] = vec
             C[i] = vec
         return C

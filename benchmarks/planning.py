@@ -1,0 +1,167 @@
+"""Planning benchmark: roadmap build, first plan and closed-loop replanning latency.
+
+A synthetic 7-DOF problem (Baxter's left-arm joint limits and velocity limits, T = 24 steps,
+dt = 0.1 s): the step cost is a Gaussian nll per time step around means on a curve in joint space
+(negative near the means, like the learned model), the "landmarks" a_hat are an offset of that
+curve, and obstacles are a few spheres in joint space (segments checked every 0.05 rad).
+For each roadmap size: build (lazy edge checks, and eager for comparison), first plan, then
+>= 20 landmark moves, each followed by a replan from the robot's current state (the robot
+advances one waypoint along its last plan between moves). Writes runs/bench/planning.json.
+
+    .venv/bin/python benchmarks/planning.py [--sizes 1000 5000] [--moves 30] [--seed 0]
+
+torch runs single-threaded here (``torch.set_num_threads(1)``): on the 2 shared cores the
+default thread pool made small step-cost batches ~10x slower.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lfd.planner import ClosedLoopPlanner, PlannerSettings
+from lfd.roadmap import Roadmap, RoadmapSettings, mixed_samples
+from lfd.stcost import CostSettings
+
+ROOT = Path(__file__).resolve().parent.parent
+LOWER = np.array([-1.70, -2.147, -3.05, -0.05, -3.059, -1.571, -3.059])
+UPPER = np.array([1.70, 1.047, 3.05, 2.618, 3.059, 2.094, 3.059])
+VMAX = np.array([1.5] * 4 + [4.0] * 3)
+T, DT, SIGMA = 24, 0.1, 0.25
+
+
+def make_world(rng):
+    """Sphere obstacles in joint space: collision_fn, batch_collision_fn, segment_fn."""
+    centers = rng.uniform(LOWER * 0.6, UPPER * 0.6, (4, 7))
+    radius = 0.6
+
+    def batch_collision_fn(Q):
+        d2 = ((Q[:, None, :] - centers[None]) ** 2).sum(-1)
+        return (d2 < radius ** 2).any(axis=1)
+
+    def collision_fn(q):
+        return bool(batch_collision_fn(np.asarray(q)[None])[0])
+
+    def segment_fn(q1, q2, step=0.05):
+        m = max(2, int(math.ceil(np.max(np.abs(q2 - q1)) / step)) + 1)
+        return bool(batch_collision_fn(q1 + (q2 - q1) * np.linspace(0, 1, m)[:, None]).any())
+
+    return collision_fn, batch_collision_fn, segment_fn
+
+
+def gaussian_step_cost(curve: np.ndarray):
+    """Factory a_hat (7,) offset -> step_nll (B, 7) -> (B, T) of Gaussians around curve + a_hat."""
+    const = 7 * math.log(math.sqrt(2 * math.pi) * SIGMA)
+
+    def factory(a_hat):
+        mu = torch.as_tensor(curve + np.asarray(a_hat, dtype=float)[None])  # (T, 7)
+        mu2 = (mu ** 2).sum(-1)
+
+        def step_nll(Q):
+            d2 = (Q ** 2).sum(-1, keepdim=True) - 2.0 * Q @ mu.T + mu2[None]
+            return 0.5 * d2.clamp_min(0.0) / SIGMA ** 2 + const
+        return step_nll
+    return factory
+
+
+def percentile(x, p):
+    return float(np.percentile(np.asarray(x), p)) if len(x) else float("nan")
+
+
+def run_size(n: int, moves: int, seed: int, eager_compare: bool) -> dict:
+    rng = np.random.default_rng(seed)
+    collision_fn, batch_collision_fn, segment_fn = make_world(rng)
+    ends = rng.uniform(LOWER * 0.7, UPPER * 0.7, (2, 7))
+    curve = ends[0] + (ends[1] - ends[0]) * np.linspace(0, 1, T)[:, None]
+    sample_fn = (lambda m: rng.uniform(LOWER, UPPER, (m, 7)))
+    # "IK of the per-step means": configurations near the curve, 20 % of the roadmap
+    near_curve = curve[rng.integers(0, T, 4 * n)] + rng.normal(0, 2 * SIGMA, (4 * n, 7))
+    near_curve = np.clip(near_curve, LOWER, UPPER)
+    tic = time.perf_counter()
+    samples = mixed_samples(sample_fn, 2 * n, near_curve, 0.2, rng)
+    rm = Roadmap.build(lambda m: samples[:m] if m == 2 * n else sample_fn(m), n, collision_fn,
+                       segment_fn, batch_collision_fn=batch_collision_fn)
+    build_s = time.perf_counter() - tic
+    out = {"n": rm.n, "k": rm.k(), "roadmap_edges": rm.graph.number_of_edges(),
+           "build_lazy_s": build_s}
+    if eager_compare:
+        tic = time.perf_counter()
+        Roadmap.build(lambda m: samples[:m] if m == 2 * n else sample_fn(m), n, collision_fn,
+                      segment_fn, batch_collision_fn=batch_collision_fn,
+                      settings=RoadmapSettings(lazy=False))
+        out["build_eager_s"] = time.perf_counter() - tic
+
+    lt = np.log(np.tile([0.3, 0.5, 0.2], (T, 1)))
+    planner = ClosedLoopPlanner(rm, gaussian_step_cost(curve), lt, DT, VMAX,
+                                settings=PlannerSettings(cost=CostSettings()))
+    a_hat = np.zeros(7)
+    planner.update_landmarks(a_hat)
+    q, t = curve[0].copy(), 0
+    while collision_fn(q):
+        q = np.clip(q + rng.normal(0, 0.1, 7), LOWER, UPPER)
+    first = planner.plan(q, t)
+    out["first_plan"] = {"status": first.status, "latency_s": first.latency_s,
+                         "cost": first.cost, **first.stats}
+    replans, stats, statuses = [], [], []
+    plan = first
+    for _ in range(moves):
+        if plan.ok and len(plan.time_steps) > 1:  # the robot follows one edge of its plan
+            q, t = plan.configurations[1], int(plan.time_steps[1])
+        if t >= T - 1:
+            q, t = first.configurations[0], 0
+        a_hat = a_hat + rng.normal(0, 0.05, 7)  # the landmarks move
+        planner.update_landmarks(a_hat)
+        plan = planner.plan(q, t)
+        replans.append(plan.latency_s)
+        stats.append(plan.stats)
+        statuses.append(plan.status)
+    out["replan"] = {
+        "moves": moves, "statuses": {s: statuses.count(s) for s in set(statuses)},
+        "latency_median_s": percentile(replans, 50), "latency_p95_s": percentile(replans, 95),
+        "latency_max_s": max(replans),
+        **{f"{k}_median": percentile([s[k] for s in stats], 50)
+           for k in ("edges_evaluated", "points_evaluated", "expanded", "segment_checks",
+                     "step_nll_calls")},
+        "edges_evaluated_max": max(s["edges_evaluated"] for s in stats),
+    }
+    return out
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 5000])
+    ap.add_argument("--moves", type=int, default=30)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-eager", action="store_true", help="skip the eager-build comparison")
+    ap.add_argument("--out", type=Path, default=ROOT / "runs" / "bench" / "planning.json")
+    args = ap.parse_args(argv)
+    if args.moves < 20:
+        ap.error("--moves must be >= 20")
+    torch.set_num_threads(1)
+    report = {"setting": {"d": 7, "T": T, "dt": DT, "vmax": VMAX.tolist(), "sigma": SIGMA,
+                          "obstacles": "4 spheres r=0.6 in joint space", "torch_threads": 1,
+                          "machine": platform.processor() or platform.machine()},
+              "targets_s": {"1000": 0.050, "5000": 0.200},
+              "runs": [run_size(n, args.moves, args.seed, not args.no_eager) for n in args.sizes]}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=2))
+    return report
+
+
+if __name__ == "__main__":
+    rep = main()
+    for r in rep["runs"]:
+        rp = r["replan"]
+        print(f"n={r['n']:5d} k={r['k']} build {r['build_lazy_s']:.2f}s "
+              f"(eager {r.get('build_eager_s', float('nan')):.2f}s) "
+              f"first plan {r['first_plan']['latency_s'] * 1e3:.0f} ms "
+              f"replan median {rp['latency_median_s'] * 1e3:.1f} ms "
+              f"p95 {rp['latency_p95_s'] * 1e3:.1f} ms, edges/replan {rp['edges_evaluated_median']:.0f} "
+              f"expanded {rp['expanded_median']:.0f} {rp['statuses']}")
