@@ -80,12 +80,10 @@ def spawn_particles(client: int, task: str, T_world_tool: np.ndarray, n: int, ra
     p_world = p_tool @ T_world_tool[:3, :3].T + T_world_tool[:3, 3]  # (n, 3)
     col = p.createCollisionShape(p.GEOM_SPHERE, radius=radius, physicsClientId=client)
     vis = p.createVisualShape(p.GEOM_SPHERE, radius=radius, rgbaColor=_RGBA[task], physicsClientId=client)
-    ids = []
-    for chunk in range(0, n, 64):  # createMultiBody batches are limited in size
-        batch = [tuple(map(float, v)) for v in p_world[chunk:chunk + 64]]
-        out = p.createMultiBody(L.PARTICLE_MASS, col, vis, basePosition=batch[0], batchPositions=batch,
-                                physicsClientId=client)
-        ids.extend(out if isinstance(out, (list, tuple)) else [out])
+    # one body per particle: createMultiBody(batchPositions=...) returns invalid ids once
+    # bodies have been removed from the client (PyBullet 3.2.7)
+    ids = [p.createMultiBody(L.PARTICLE_MASS, col, vis, basePosition=[float(v) for v in x], physicsClientId=client)
+           for x in p_world]
     for b in ids:
         p.changeDynamics(b, -1, physicsClientId=client, **_MATERIAL[task])
     return ParticleSet(tuple(ids), radius, task)
