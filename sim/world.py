@@ -24,7 +24,7 @@ import numpy as np
 import pybullet as p
 
 from lfd.robots import BAXTER_LEFT, RobotSpec, example_robot_data_share, resolve_urdf
-from sim import assets, layout as L
+from sim import assets, layout as L, quiet_stdio
 from sim.particles import (ParticleSet, in_bowl_mask, in_tool_mask, particle_positions,
                            remove_particles, spawn_particles)
 
@@ -98,8 +98,9 @@ class World:
         p.configureDebugVisualizer(p.COV_ENABLE_GUI, 0, physicsClientId=c)
         with tempfile.TemporaryDirectory() as tmp:
             urdf = _patched_urdf(self.spec, self.task, Path(tmp))
-            self.robot = p.loadURDF(str(urdf), (0, 0, 0), (0, 0, 0, 1), useFixedBase=True,
-                                    flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c)
+            with quiet_stdio():  # PyBullet reports links without inertia on stdout
+                self.robot = p.loadURDF(str(urdf), (0, 0, 0), (0, 0, 0, 1), useFixedBase=True,
+                                        flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c)
         self.joint_index, self.link_index = {}, {"base": -1}
         for j in range(p.getNumJoints(self.robot, physicsClientId=c)):
             info = p.getJointInfo(self.robot, j, physicsClientId=c)
@@ -318,6 +319,9 @@ def main(argv=None) -> int:
     if args.task not in TASKS:
         print(f"error: --task must be one of {', '.join(TASKS)}, got {args.task!r}", file=sys.stderr)
         return 2
+    if args.steps < 0:
+        print(f"error: --steps must be >= 0, got {args.steps}", file=sys.stderr)
+        return 2
     if args.snapshot:
         out = Path(args.snapshot)
         if out.suffix.lower() != ".png":
@@ -332,7 +336,7 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     with world:
-        world.step(max(args.steps, 0))
+        world.step(args.steps)
         if args.snapshot:
             try:
                 world.snapshot(args.snapshot)
