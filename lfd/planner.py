@@ -161,13 +161,15 @@ class ClosedLoopPlanner:
             return self._result("goal_in_collision", tic, "q_goal is in collision")
         seg0 = rm.counters["segment_checks"]
         c0 = dict(self.costs.counters)
+        # the robot's configuration is a source, the goal a sink (see lfd.stgraph)
         temps, links = {START: q}, {START: rm.connect_point(q, self.settings.connect_k)}
+        in_links = {}
         if g is not None:
             temps[GOAL] = g
-            links[GOAL] = rm.connect_point(g, self.settings.connect_k)
-            if not rm.segment_fn(q, g):  # a direct start-goal edge when it is free
+            in_links[GOAL] = rm.connect_point(g, self.settings.connect_k)
+            if rm.segment_free(q, g):  # a direct start-goal edge when it is free
                 links[START].append(GOAL)
-        self.costs.set_temporary(temps, links)
+        self.costs.set_temporary(temps, links, in_links)
         status, message, path, cost, n_exp = "ok", "", (), math.inf, 0
         try:
             self.costs.prepare()

@@ -244,6 +244,10 @@ class Roadmap:
         return [int(j) for j in self.nearest(q, k)
                 if not self._segment_collides(q, self._buf[j])]
 
+    def segment_free(self, q1: np.ndarray, q2: np.ndarray) -> bool:
+        """Whether the segment ``q1-q2`` is collision-free (not cached)."""
+        return not self._segment_collides(np.asarray(q1, dtype=float), np.asarray(q2, dtype=float))
+
     def check_all_edges(self) -> int:
         """Check every unknown edge now (eager mode after the fact); returns how many collided."""
         before = self.counters["edges_removed"]

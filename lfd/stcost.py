@@ -29,9 +29,8 @@ every sampling interval adds ``|s|`` per interval: the planner minimizes
 path duration the optimum is unchanged. The clamp at 0 is active only where L is below the floor,
 which never happens when the floor is a true bound (and, when estimated, only between vertices).
 
-A* heuristic: ``h(t)`` = the cheapest way to advance from step t to step T-1 using time edges that
-land on the cheapest vertex of each step (DP over t); roadmap edges cost >= 0 and time edges cost
-at least ``-log p(t'|t) + min_v ell(q_v, t')``, so ``h`` is admissible and consistent.
+A* heuristic: ``lfd.stheuristic``, the cost-to-go of a relaxed problem (roadmap edges charged
+only their self-transition part), a consistent lower bound computed for all vertices at once.
 
 Caches: raw vertex costs ``(n, T)`` keyed by vertex id, per-vertex edge cost tables, both dropped
 by ``set_step_nll`` (new landmarks); temporary vertices (the robot's current configuration, a
@@ -48,6 +47,7 @@ import numpy as np
 import torch
 
 from lfd.roadmap import Roadmap
+from lfd.stheuristic import relaxed_cost_to_go, source_bound
 
 __all__ = ["CostSettings", "CostError", "SpatiotemporalCosts", "segment_nodes"]
 
@@ -61,16 +61,20 @@ class CostSettings:
     """quad_dt: max time (s) between quadrature nodes along an edge (None: the model's dt);
     nll_floor: known lower bound on step_nll (None: estimated from all roadmap vertices);
     heuristic: compute the A* heuristic (needs every vertex's cost, one batched call);
+    heuristic_sweeps: move-first relaxations of the heuristic (lfd.stheuristic), 0 = time only;
     max_batch: rows per step_nll call; dtype: of the tensors passed to step_nll."""
     quad_dt: float | None = None
     nll_floor: float | None = None
     heuristic: bool = True
+    heuristic_sweeps: int = 2
     max_batch: int = 16384
     dtype: torch.dtype = torch.float64
 
     def __post_init__(self):
         if self.quad_dt is not None and not self.quad_dt > 0:
             raise ValueError(f"Expected quad_dt > 0, got {self.quad_dt}")
+        if self.heuristic_sweeps < 0:
+            raise ValueError(f"Expected heuristic_sweeps >= 0, got {self.heuristic_sweeps}")
         if self.max_batch < 1:
             raise ValueError(f"Expected max_batch >= 1, got {self.max_batch}")
 
@@ -126,8 +130,11 @@ class SpatiotemporalCosts:
         self.time_offsets = tuple(k for k in offsets if k > 0)
         self._step_nll: Callable | None = None
         self._temp: dict[int, np.ndarray] = {}
-        self._links: dict[int, list[int]] = {}  # temp id -> roadmap ids it is joined to
-        self._back: dict[int, list[int]] = {}  # roadmap id -> temp ids joined to it
+        self._links: dict[int, list[int]] = {}  # temp id -> vertices it has edges to
+        self._in: dict[int, list[int]] = {}  # temp id -> roadmap ids with edges into it
+        self._back: dict[int, list[int]] = {}  # roadmap id -> temp ids it has edges to
+        self._relaxed: tuple | None = None  # (n, src, dst, tau) of the roadmap, for stheuristic
+        self._epoch = 0
         self.counters = {"edges": 0, "points": 0, "calls": 0}
         self._reset()
 
@@ -136,7 +143,10 @@ class SpatiotemporalCosts:
         self._vraw = np.full((self.roadmap.n, self.T), np.nan)  # raw L(q_v | t), by vertex id
         self._tempraw: dict[int, np.ndarray] = {}
         self._shift: float | None = None
-        self._h: np.ndarray | None = None
+        self._G: np.ndarray | None = None  # heuristic rows: roadmap, then temps with in-edges
+        self._Gkey = None
+        self._Grow: dict[int, int] = {}  # temp id -> row of _G
+        self._Gsrc: dict[int, np.ndarray] = {}  # source-only temp id -> (T,) bound
         self._out: dict[int, tuple[list[int], np.ndarray]] = {}  # v -> (nbrs, (deg, T) costs)
         self._edge: dict[tuple[int, int], np.ndarray] = {}  # roadmap edge (a < b) -> (T,) costs
         self._tout: dict[int, tuple[list[int], np.ndarray]] = {}  # per plan, see set_temporary
@@ -146,18 +156,23 @@ class SpatiotemporalCosts:
     def set_step_nll(self, step_nll: Callable) -> None:
         """New landmarks: use ``step_nll`` from now on and drop every landmark-dependent cache."""
         self._step_nll = step_nll
+        self._epoch += 1
         self._reset()
 
-    def set_temporary(self, temps: dict[int, np.ndarray], links: dict[int, list[int]]) -> None:
-        """Temporary vertices for one plan: ``temps[id < 0] = q (d,)`` joined to roadmap ``links[id]``
-        (already collision-checked). Replaces the previous ones and their cached edges."""
+    def set_temporary(self, temps: dict[int, np.ndarray], links: dict[int, list[int]],
+                      in_links: dict[int, list[int]] | None = None) -> None:
+        """Temporary vertices for one plan: ``temps[id < 0] = q (d,)`` with directed edges to the
+        vertices ``links[id]`` and from the roadmap vertices ``in_links[id]`` (all collision-checked
+        by the caller). The robot's configuration is a source (no in-links), a goal a sink (no
+        links). Replaces the previous temporary vertices and their cached edges."""
         for i in [i for i in self._out if i < 0]:
             del self._out[i]
         self._tout, self._tedge = {}, {}
         self._temp = {i: np.asarray(q, dtype=float).reshape(self.roadmap.d) for i, q in temps.items()}
         self._links = {i: list(links.get(i, [])) for i in self._temp}
+        self._in = {i: list((in_links or {}).get(i, [])) for i in self._temp}
         self._back = {}
-        for i, ws in self._links.items():
+        for i, ws in self._in.items():
             for w in ws:
                 self._back.setdefault(w, []).append(i)
         self._tempraw = {}
@@ -227,26 +242,74 @@ class SpatiotemporalCosts:
                     del self._out[v]
         for v in self._temp:
             self._raw(v)
-        self._h = self._heuristic_table() if self.settings.heuristic else None
+        if self.settings.heuristic:
+            self._heuristic_table()
+        else:
+            self._G = None
 
     def ell(self, raw: np.ndarray) -> np.ndarray:
         """Shifted, non-negative step cost of raw values (any shape)."""
         return np.maximum(raw - self._shift, 0.0)
 
-    def _heuristic_table(self) -> np.ndarray:
-        rows = [self._vraw[:self.roadmap.n]] + [self._raw(v)[None] for v in self._temp]
-        minv = self.ell(np.concatenate(rows, axis=0)).min(axis=0)  # (T,)
-        h = np.full(self.T, np.inf)
-        h[-1] = 0.0
-        for t in range(self.T - 2, -1, -1):
-            for k in self.time_offsets:
-                if t + k < self.T:
-                    h[t] = min(h[t], self.trans[t, k] + minv[t + k] + h[t + k])
-        return h
+    def _relaxed_edges(self):
+        """(src, dst, tau) of every roadmap edge in both directions, sorted by src (cached)."""
+        n = self.roadmap.n
+        if self._relaxed is None or self._relaxed[0] != n:
+            E = np.array(list(self.roadmap.graph.edges), dtype=int).reshape(-1, 2)
+            src = np.concatenate([E[:, 0], E[:, 1]])
+            dst = np.concatenate([E[:, 1], E[:, 0]])
+            order = np.argsort(src, kind="stable")
+            src, dst = src[order], dst[order]
+            V = self.roadmap._buf
+            tau = np.max(np.abs(V[dst] - V[src]) / self.vmax, axis=1) if len(src) else np.zeros(0)
+            self._relaxed = (n, src, dst, tau)
+        return self._relaxed[1:]
 
-    def heuristic(self, t: int) -> float:
-        """Admissible, consistent lower bound on the cost from step ``t`` to step T-1."""
-        return 0.0 if self._h is None else float(self._h[t])
+    def _tau(self, v: int, ws) -> np.ndarray:
+        Q = np.array([self._pos(w) for w in ws]).reshape(len(ws), self.roadmap.d)
+        return np.max(np.abs(Q - self._pos(v)) / self.vmax, axis=1)
+
+    def _heuristic_table(self) -> None:
+        """Consistent A* bounds (lfd.stheuristic) for the roadmap, the goal and the start."""
+        n = self.roadmap.n
+        sinks = [i for i in sorted(self._temp) if self._in[i]]
+        key = (self._epoch, n, self._shift, self.settings.heuristic_sweeps,
+               tuple((i, self._temp[i].tobytes(), tuple(self._in[i]), tuple(self._links[i]))
+                     for i in sinks))
+        if key != self._Gkey:
+            self._Grow = {i: n + j for j, i in enumerate(sinks)}
+            ell = self.ell(np.concatenate([self._vraw[:n]] + [self._raw(i)[None] for i in sinks]))
+            xs, xd, xt = [], [], []
+            for i in sinks:
+                xs += self._in[i]
+                xd += [self._Grow[i]] * len(self._in[i])
+                xt.append(self._tau(i, self._in[i]))
+                out = [w for w in self._links[i] if w >= 0 or w in self._Grow]
+                xs += [self._Grow[i]] * len(out)
+                xd += [w if w >= 0 else self._Grow[w] for w in out]
+                xt.append(self._tau(i, out))
+            extra = (np.array(xs, dtype=int), np.array(xd, dtype=int),
+                     np.concatenate(xt)) if xs else None
+            src, dst, tau = self._relaxed_edges()
+            self._G = relaxed_cost_to_go(ell, self.trans, self.time_offsets, self.dt, src, dst,
+                                         tau, self.settings.heuristic_sweeps, extra)
+            self._Gkey = key
+        self._Gsrc = {}
+        for i in self._temp:
+            if i not in self._Grow:
+                out = [w for w in self._links[i] if w >= 0 or w in self._Grow]
+                rows = np.array([w if w >= 0 else self._Grow[w] for w in out], dtype=int)
+                self._Gsrc[i] = source_bound(self.ell(self._raw(i)), self._G, rows,
+                                             self._tau(i, out), self.trans, self.time_offsets,
+                                             self.dt)
+
+    def heuristic(self, v: int, t: int) -> float:
+        """Consistent lower bound on the cost from ``(v, t)`` to step T-1 (0 when disabled)."""
+        if self._G is None:
+            return 0.0
+        if v >= 0:
+            return float(self._G[v, t])
+        return float(self._Gsrc[v][t]) if v in self._Gsrc else float(self._G[self._Grow[v], t])
 
     def time_cost(self, v: int, t: int, k: int) -> float:
         """Cost of the time edge ``(v, t) -> (v, t + k)``; inf when not permitted."""
@@ -264,8 +327,7 @@ class SpatiotemporalCosts:
         """
         hit = self._out.get(v)
         if hit is None:
-            nbrs = (self._links.get(v, []) + self._back.get(v, [])) if v < 0 \
-                else self.roadmap.free_neighbors(v)
+            nbrs = self._links.get(v, []) if v < 0 else self.roadmap.free_neighbors(v)
             hit = self._out[v] = (nbrs, self._edge_table(v, nbrs))
         return hit
 

@@ -6,6 +6,9 @@ step ``t`` in ``0..T-1``. Edges (graph Cartesian product of the roadmap and the 
 
 * ``(v, t) -> (v, t + k)`` for each permitted offset ``k > 0`` (``SpatiotemporalCosts.time_cost``);
 * ``(u, t) -> (w, t)`` for each collision-free roadmap edge ``u-w`` (``SpatiotemporalCosts.spatial``);
+* ``(START, t) -> (w, t)`` for the roadmap vertices ``w`` the robot's configuration is joined to,
+  and ``(u, t) -> (GOAL, t)`` for those joined to the goal: START is a source and GOAL a sink
+  (paths never come back to the robot's current configuration, nor leave the goal's);
 * when no goal configuration is given, ``(v, T-1) -> SINK`` at cost 0, so that "any vertex at the
   last step" is one target node.
 
@@ -13,7 +16,7 @@ Materializing the product (n * T nodes, ~n * T * k edges) would cost seconds at 
 most of it is never reached. ``LazyProductGraph`` is a real ``nx.DiGraph`` whose successor mapping
 ``_adj`` builds a node's out-edges (with their costs) the first time the search reads them, which
 is when networkx pops that node. ``nx.astar_path`` runs on it unchanged, with a callable weight that
-returns the stored cost, and ``SpatiotemporalCosts.heuristic`` as the (consistent) heuristic; with
+returns the stored cost, and ``SpatiotemporalCosts.heuristic`` (lfd.stheuristic, consistent) as the heuristic; with
 ``heuristic=False`` it is Dijkstra's algorithm. The graph lives for one search only.
 """
 
@@ -119,7 +122,7 @@ class LazyProductGraph(nx.DiGraph):
         return succ
 
     def heuristic(self, node, _target=None) -> float:
-        return 0.0 if node == SINK else self.costs.heuristic(node[1])
+        return 0.0 if node == SINK else self.costs.heuristic(node[0], node[1])
 
 
 def _stored_cost(_u, _v, cost):

@@ -80,7 +80,9 @@ def reference_graph(rm, step_nll, log_trans, dt, vmax, q_start, quad_dt=None, fl
         if not seg(q_start, q_goal):
             edges.append(("s", "g"))
     G = nx.DiGraph()
-    for u, w in edges:
+    for u, w in edges:  # "s" (the robot) is a source, "g" (the goal) a sink
+        if u == "g" or (u == "s" and w == "g"):
+            u, w = w, u
         a, b = pos[u], pos[w]
         tau = np.max(np.abs(b - a) / vmax)
         m = max(1, math.ceil(tau / quad_dt - 1e-9))
@@ -89,7 +91,8 @@ def reference_graph(rm, step_nll, log_trans, dt, vmax, q_start, quad_dt=None, fl
         for t in range(T):
             c = tau / dt * (-log_trans[t, 0] + mean[t])
             G.add_edge((u, t), (w, t), weight=c)
-            G.add_edge((w, t), (u, t), weight=c)
+            if u != "s" and w != "g":
+                G.add_edge((w, t), (u, t), weight=c)
     for v, q in pos.items():
         lq = ell(L(q[None])[0])
         for t in range(T):
@@ -174,19 +177,23 @@ def test_goal_configuration_and_known_floor(toy):
     assert res.cost == pytest.approx(ref, rel=1e-9)
 
 
-def test_heuristic_is_admissible(toy):
+def test_heuristic_is_admissible_and_consistent(toy):
     means = arc_means(T2)
     costs = SpatiotemporalCosts(toy, log_trans_table(T2), DT, VMAX2)
     costs.set_step_nll(gaussian_factory()(means))
-    costs.set_temporary({}, {})
+    q0 = np.array([-0.7, 0.05])
+    costs.set_temporary({-1: q0}, {-1: toy.connect_point(q0)})
     costs.prepare()
-    G = reference_graph(toy, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2,
-                        np.array(toy.vertices[0]))
+    G = reference_graph(toy, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2, q0)
     to_go = nx.single_source_dijkstra_path_length(G.reverse(copy=False), "sink")
-    for node, dist in to_go.items():  # exact cost-to-go from every node >= h(t)
-        if node != "sink":
-            assert costs.heuristic(node[1]) <= dist + 1e-9
-    assert costs.heuristic(T2 - 1) == 0.0 and costs.heuristic(0) > 0.0
+
+    def h(node):
+        return 0.0 if node == "sink" else costs.heuristic(-1 if node[0] == "s" else node[0], node[1])
+    for node, dist in to_go.items():  # exact cost-to-go from every node >= h
+        assert h(node) <= dist + 1e-9
+    for a, b, c in G.edges(data="weight"):  # consistency: h(a) <= c(a, b) + h(b)
+        assert h(a) <= c + h(b) + 1e-9
+    assert max(h((v, 0)) for v in range(toy.n)) > costs.heuristic(0, T2 - 1) == 0.0
 
 
 def test_edge_integral_converges_with_resolution():

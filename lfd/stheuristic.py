@@ -1,0 +1,98 @@
+"""A consistent A* heuristic for the spatiotemporal roadmap: cost-to-go of a relaxed problem.
+
+Relaxation: a roadmap edge ``u-w`` at step t really costs
+``(tau/dt) * (-log p(t|t) + mean ell along the edge)``; the relaxed problem keeps only
+``w_uw(t) = (tau/dt) * (-log p(t|t))`` (ell >= 0), and keeps every time edge exactly. Its
+cost-to-go ``H(v, t)`` is a lower bound of the true one. We compute lower bounds ``G_j <= H``
+backwards over t, vectorized over all vertices:
+
+* ``G(v, T-1) = 0``;
+* ``term(v, t) = min_k [-log p(t+k|t) + ell(v, t+k) + G(v, t+k)]`` (advance time at v first);
+* ``G_0(v, t) = h(t)`` (the vertex-independent bound below), then ``sweeps`` times
+  ``G_j(v, t) = min(term(v, t), min_u [w_vu(t) + G_{j-1}(u, t)])`` (move first).
+
+``h(t)`` is the cheapest way to advance from t to T-1 through the cheapest vertex of every step.
+By induction ``h <= G_0 <= G_1 <= ... <= H``, and ``G_j(v) <= w_vu + G_{j-1}(u) <= c_vu + G_j(u)``
+for every roadmap edge and ``G(v, t) <= term(v, t) <= c + G(v, t+k)`` for every time edge, so each
+``G_j`` is **consistent** (networkx's A*, which never re-expands a node, stays optimal). More
+sweeps tighten the bound (fewer expansions) at O(sweeps * T * edges) numpy work per landmark
+update. The relaxed graph may contain edges later found to collide: extra edges only lower it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["time_only_bound", "relaxed_cost_to_go", "source_bound"]
+
+
+def time_only_bound(trans: np.ndarray, min_ell: np.ndarray, offsets) -> np.ndarray:
+    """``h: (T,)``: trans (T, K') with trans[t, k] = -log p(t+k|t) (inf = forbidden), min_ell (T,)
+    the cheapest vertex cost per step, offsets the time offsets k > 0."""
+    T = len(min_ell)
+    h = np.full(T, np.inf)
+    h[-1] = 0.0
+    for t in range(T - 2, -1, -1):
+        for k in offsets:
+            if t + k < T:
+                h[t] = min(h[t], trans[t, k] + min_ell[t + k] + h[t + k])
+    return h
+
+
+def relaxed_cost_to_go(ell: np.ndarray, trans: np.ndarray, offsets, dt: float, src: np.ndarray,
+                       dst: np.ndarray, tau: np.ndarray, sweeps: int, extra=None) -> np.ndarray:
+    """``G: (N, T)`` consistent lower bounds of the cost-to-go of every vertex and step.
+
+    Parameters
+    ----------
+    ell : (N, T) shifted step cost of every vertex (roadmap vertices and temporary ones).
+    trans : (T, K') -log transition probabilities by offset (column 0: stay).
+    offsets : time offsets k > 0.
+    src, dst, tau : (M,) directed edges (both directions of every roadmap edge) sorted by
+        ``src``, and their traversal times (s).
+    sweeps : number of move-first relaxations per step (0: ``G = h`` for every vertex).
+    extra : optional (src, dst, tau) of further directed edges, in any order (e.g. into a goal).
+    """
+    N, T = ell.shape
+    h = time_only_bound(trans, ell.min(axis=0), offsets)
+    G = np.zeros((N, T))
+    starts = np.searchsorted(src, np.arange(N))  # first out-edge of each vertex
+    has = np.bincount(src, minlength=N) > 0 if len(src) else np.zeros(N, dtype=bool)
+    for t in range(T - 2, -1, -1):
+        term = np.full(N, np.inf)
+        for k in offsets:
+            if t + k < T and np.isfinite(trans[t, k]):
+                term = np.minimum(term, trans[t, k] + ell[:, t + k] + G[:, t + k])
+        g = np.minimum(term, h[t])
+        stay = trans[t, 0]
+        if np.isfinite(stay) and len(src):
+            w = tau * (stay / dt)
+            for _ in range(sweeps):
+                best = np.minimum.reduceat(w + g[dst], starts[has])
+                g_new = term.copy()
+                g_new[has] = np.minimum(term[has], best)
+                if extra is not None:
+                    np.minimum.at(g_new, extra[0], extra[2] * (stay / dt) + g[extra[1]])
+                g = g_new
+        elif not np.isfinite(stay):
+            g = term  # no moving at this step: advancing at v is the only option
+        G[:, t] = g
+    return G
+
+
+def source_bound(ell_s: np.ndarray, G: np.ndarray, nbrs: np.ndarray, tau: np.ndarray,
+                 trans: np.ndarray, offsets, dt: float) -> np.ndarray:
+    """``(T,)`` consistent bound for a vertex with out-edges only (the robot's configuration).
+
+    ell_s : (T,) its shifted step cost; G : (N, T) from ``relaxed_cost_to_go``; nbrs : (m,) rows
+    of G it has edges to, with traversal times tau : (m,). One move-first relaxation on top of
+    the final G, so ``G_s <= w + G[u]`` for its edges and ``G_s(t) <= c + G_s(t + k)`` in time.
+    """
+    T = len(ell_s)
+    g = np.zeros(T)
+    for t in range(T - 2, -1, -1):
+        term = min((trans[t, k] + ell_s[t + k] + g[t + k] for k in offsets if t + k < T),
+                   default=np.inf)
+        move = np.min(tau * (trans[t, 0] / dt) + G[nbrs, t]) if len(nbrs) else np.inf
+        g[t] = min(term, move)
+    return g
