@@ -1,0 +1,136 @@
+"""The EM fit: objective pieces against references, and recovery of a known model."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lfd.kinematics import KinematicModel
+from lfd.learn import FitConfig, _Data, _Fitter, fit
+from lfd.model import step_nll_tensor
+from lfd.synthetic import make_synthetic
+from lfd.tasks import POWDER
+
+T_STEPS = 8
+
+
+@pytest.fixture(scope="module")
+def kin():
+    return KinematicModel.from_spec()
+
+
+@pytest.fixture(scope="module")
+def synth(kin):
+    torch.set_num_threads(1)
+    return make_synthetic(kin, seed=3, std_scale=0.5, time_steps=T_STEPS, task=POWDER)
+
+
+def _fitter(ds, kin, cfg, dtype=torch.float64):
+    data = _Data(ds, kin, dtype, torch.device("cpu"))
+    return data, _Fitter(data, cfg, dtype, torch.device("cpu"), list(range(len(ds.landmark_names))))
+
+
+def test_config_options_are_validated():
+    with pytest.raises(ValueError, match=r"FitConfig.tool must be one of learn, gripper, tip; got 'tipp'"):
+        FitConfig(tool="tipp")
+    with pytest.raises(ValueError, match=r"FitConfig.covariance must be one of full, block"):
+        FitConfig(covariance="diag")
+    with pytest.raises(ValueError, match="FitConfig.device"):
+        FitConfig(device="tpu")
+
+
+@pytest.mark.parametrize("covariance", ["full", "block"])
+def test_vectorized_loss_equals_loop_over_observations(synth, kin, covariance):
+    ds, truth = synth
+    cfg = FitConfig(time_steps=T_STEPS, covariance=covariance)
+    data, fi = _fitter(ds, kin, cfg)
+    t_idx = torch.as_tensor(np.concatenate(truth.alignments))
+    tool = torch.tensor([0.01, 0.02, 0.1], dtype=torch.float64)
+    w = torch.tensor([0.6, 0.2, 0.1, 0.05, 0.05], dtype=torch.float64)
+    mu, si = fi.eta_from(tool, w, t_idx)
+    got = fi.joint_loss(tool, w, mu, si, t_idx)
+    # reference: one observation at a time, features from the paper's definition
+    total = 0.0
+    for n in range(data.N):
+        m = int(data.demo[n])
+        K_inv = sum(w[i] * torch.linalg.inv(torch.as_tensor(ds.demos[m].landmarks[i])) for i in range(5))
+        p = K_inv @ data.T_world_ee[n] @ torch.cat([tool, torch.ones(1, dtype=torch.float64)])
+        f = torch.cat([data.q[n], p[:3]])[None]
+        total += float(step_nll_tensor(f, mu, si)[0, t_idx[n]])
+    total += float(fi.nu * ((si * fi.floor) ** 2).sum())  # the variance-floor prior
+    assert float(got) == pytest.approx(total, rel=1e-10)
+    # profiled objective (eta in closed form) equals the joint objective at that eta
+    assert float(fi.profiled(tool, w, t_idx)) == pytest.approx(float(got), rel=1e-10)
+    if covariance == "block":
+        assert torch.count_nonzero(si[:, 7:, :7]) == 0
+
+
+def test_profiled_gradient_matches_finite_differences(synth, kin):
+    ds, truth = synth
+    _, fi = _fitter(ds, kin, FitConfig(time_steps=T_STEPS))
+    t_idx = torch.as_tensor(np.concatenate(truth.alignments))
+    tool = torch.tensor([0.01, 0.02, 0.1], dtype=torch.float64, requires_grad=True)
+    w = torch.tensor([0.6, 0.2, 0.1, 0.05, 0.05], dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda a, b: fi.profiled(a, b, t_idx) / 1000, (tool, w), atol=1e-6)
+
+
+def test_m_step_from_true_alignment_recovers_the_model(synth, kin):
+    ds, truth = synth
+    _, fi = _fitter(ds, kin, FitConfig(time_steps=T_STEPS))
+    t_idx = torch.as_tensor(np.concatenate(truth.alignments))
+    w0 = torch.full((5,), 0.2, dtype=torch.float64)
+    tool, w, mu, si = fi.m_step(torch.zeros(3, dtype=torch.float64), w0, t_idx, True, True)
+    assert np.linalg.norm(tool.numpy() - truth.tool) < 0.005
+    assert float(w[0]) > 0.95
+    assert abs(float(w.sum()) - 1.0) < 1e-12
+    assert np.abs(mu[:, 7:].numpy() - truth.means).max() < 0.005
+    Sigma = torch.linalg.inv(si.transpose(1, 2) @ si)[:, 7:, 7:]
+    ratio = np.sqrt(np.diagonal(Sigma.numpy(), axis1=1, axis2=2)) / truth.stds
+    assert ratio.min() > 0.6 and ratio.max() < 1.5
+
+
+def test_fit_recovers_tool_point_and_landmark(synth, kin):
+    ds, truth = synth
+    res = fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=3, seed=0))
+    m = res.model
+    assert np.linalg.norm(m.tool.numpy() - truth.tool) < 0.01
+    assert res.env_before_pruning["bowl"] > 0.95
+    assert res.kept_landmarks == ("bowl",) and m.landmark_names == ("bowl",)
+    assert float(m.env.sum()) == pytest.approx(1.0, abs=1e-12)
+    assert all(torch.isfinite(x).all() for x in (m.mu, m.sigma_inv, m.tool))
+    assert len(res.restart_losses) == 3 and res.final_loss <= min(res.restart_losses) + 1e-9
+    assert all(a[0] == 0 and a[-1] == T_STEPS - 1 for a in res.alignments)
+    assert np.isfinite(m.log_trans.exp().numpy()).all() and (m.log_trans.exp() > 0).sum() == 3 * T_STEPS - 3
+    for hist in res.loss_history:  # EM never increases the objective
+        assert all(b <= a + 1e-6 for a, b in zip(hist, hist[1:]))
+    # deterministic for a seed
+    again = fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=3, seed=0))
+    assert torch.equal(again.model.mu, m.mu) and torch.equal(again.model.tool, m.tool)
+
+
+def test_fixed_modes_and_float32(synth, kin):
+    ds, _ = synth
+    res = fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=1, tool="tip", env="bowl", dtype="float32"))
+    m = res.model
+    assert m.mu.dtype == torch.float32
+    assert m.tool.tolist() == pytest.approx(list(POWDER.manual_tool_point))
+    assert m.landmark_names == ("bowl",) and m.env.tolist() == [1.0]
+    res = fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=1, tool="gripper"))
+    assert res.model.tool.tolist() == [0.0, 0.0, 0.0]
+
+
+def test_non_finite_restart_is_dropped(synth, kin):
+    ds, _ = synth
+    calls = {"n": 0}
+
+    def prior(tool, w):  # poisons the first restart only
+        calls["n"] += 1
+        return tool.sum() * (math.nan if calls["n"] < 2 else 0.0)
+
+    with pytest.warns(RuntimeWarning, match="restart 0 dropped"):
+        res = fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=2, zeta_prior=prior))
+    assert math.isnan(res.restart_losses[0]) and math.isfinite(res.final_loss)
+    assert res.best_restart == 1 and any("restart 0 dropped" in w for w in res.warnings)
+    with pytest.raises(ValueError, match="every one of the 1 restarts failed"):
+        fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=1, zeta_prior=lambda t, w: t.sum() * math.nan))
