@@ -15,14 +15,19 @@ def world(make_world):
     return make_world("powder")  # with particles in the spoon: they must not count as obstacles
 
 
-@pytest.fixture(scope="module")
-def fns(world):
-    return make_collision_fns(world)
+@pytest.fixture(scope="module", params=["shadow", "inplace"])
+def method(request):
+    return request.param
 
 
 @pytest.fixture(scope="module")
-def fns_no_obstacles(world):
-    return make_collision_fns(world, obstacles=False)
+def fns(world, method):
+    return make_collision_fns(world, method=method)
+
+
+@pytest.fixture(scope="module")
+def fns_no_obstacles(world, method):
+    return make_collision_fns(world, obstacles=False, method=method)
 
 
 @pytest.fixture
@@ -124,3 +129,19 @@ def test_bisection_order_and_bad_input(world, fns):
         fns.batch_collision_fn(np.zeros(7))
     with pytest.raises(ValueError, match="resolution must be > 0"):
         make_collision_fns(world, resolution=0.0)
+    with pytest.raises(ValueError, match="method must be"):
+        make_collision_fns(world, method="fast")
+
+
+def test_methods_agree(world):
+    shadow, inplace = make_collision_fns(world), make_collision_fns(world, method="inplace")
+    world.place_object("vase", (0.75, 0.6))
+    try:
+        rng = np.random.default_rng(3)
+        Q = L.HOME_Q + rng.normal(0, 0.5, (150, 7))  # (150, 7): near home, where the obstacles are
+        a, b = shadow.batch_collision_fn(Q), inplace.batch_collision_fn(Q)
+        assert 0 < a.sum() < len(Q)
+        assert (a == b).all()
+    finally:
+        world.remove_object("vase")
+        shadow.close()
