@@ -1,0 +1,155 @@
+"""Learn a task model from demonstrations: ``python train.py --task powder|pour [...]``.
+
+Thin: parses arguments, loads (or generates) demonstrations, calls ``lfd.learn.fit``, writes
+``model.pt``, ``config.json``, ``summary.json`` and TensorBoard logs into ``--out``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
+
+ROOT = Path(__file__).resolve().parent
+
+
+def parse_args(argv=None):
+    p = ArgumentParser(prog="train.py", description=__doc__.splitlines()[0])
+    p.add_argument("--task", required=True, choices=("powder", "pour"))
+    p.add_argument("--demos", type=Path, help="demonstration folder (default runs/demos/<task>)")
+    p.add_argument("--out", type=Path, help="output folder (default runs/<task>)")
+    p.add_argument("--tool", default="learn", choices=("learn", "gripper", "tip"))
+    p.add_argument("--env", default="learn", choices=("learn", "bowl"))
+    p.add_argument("--restarts", type=int, default=None)
+    p.add_argument("--time-steps", type=int, default=None)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
+    p.add_argument("--covariance", default=None, choices=("full", "block"))
+    return p.parse_args(argv)
+
+
+def ensure_demos(task: str, demos_dir: Path, seed: int) -> None:
+    """Generate demonstrations with ``sim.demos.generate`` when ``demos_dir`` has none."""
+    if demos_dir.is_dir() and any(demos_dir.glob("*.npz")):
+        return
+    try:
+        from sim.demos import generate
+    except ImportError as e:
+        raise UsageError(f"--demos {demos_dir}: no demonstrations there, and they cannot be generated "
+                         f"(sim.demos.generate is unavailable: {e})") from e
+    print(f"no demonstrations in {demos_dir}; generating 11 with sim.demos ...", flush=True)
+    generate(task, demos_dir, n=11, seed=seed)
+
+
+class Logger:
+    """Progress on stdout and TensorBoard scalars/images (the only SummaryWriter owner)."""
+
+    def __init__(self, out: Path, joint_names):
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+            self.writer = SummaryWriter(str(out / "tensorboard"))
+        except ImportError:
+            self.writer = None
+        self.joint_names = list(joint_names)
+        self.step = 0
+        self.t0 = time.perf_counter()
+
+    def __call__(self, ev: dict) -> None:
+        self.step += 1
+        tag = f"{ev['stage']}{ev['restart']}"
+        print(f"[{time.perf_counter() - self.t0:6.1f}s] {ev['stage']} {ev['restart']} iter {ev['iteration'] + 1}: "
+              f"loss {ev['loss']:.4f}  tool {np.round(ev['tool'], 3).tolist()}", flush=True)
+        w = self.writer
+        if w is None:
+            return
+        w.add_scalar(f"loss/{tag}", ev["loss"], ev["iteration"])
+        w.add_scalar("loss/all", ev["loss"], self.step)
+        for name, x in zip(ev["landmarks"], ev["env"]):
+            w.add_scalar(f"landmarks/{name}", float(x), self.step)
+        for axis, x in zip("xyz", ev["tool"]):
+            w.add_scalar(f"tool/{axis}", float(x), self.step)
+
+    def final(self, result) -> None:
+        w = self.writer
+        if w is None:
+            return
+        m = result.model
+        std = np.sqrt(np.diagonal(m.covariances.cpu().numpy(), axis1=1, axis2=2))  # (T, F)
+        names = self.joint_names + ["task_x", "task_y", "task_z"]
+        for t in range(m.time_steps):
+            for j, n in enumerate(names):
+                w.add_scalar(f"features/std/{n}", float(std[t, j]), t)
+        for i, a in enumerate(result.alignments):
+            img = np.zeros((1, m.time_steps, len(a)), dtype=np.float32)  # (C, H = step, W = sample)
+            img[0, a, np.arange(len(a))] = 1.0
+            w.add_image(f"alignment/demo_{i:02d}", img, 0)
+        w.close()
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    import torch
+
+    from lfd.demos import load_demos
+    from lfd.kinematics import KinematicModel
+    from lfd.learn import FitConfig, fit
+
+    demos_dir = args.demos or ROOT / "runs" / "demos" / args.task
+    out = writable_dir(args.out or ROOT / "runs" / args.task)
+    if args.demos is None:
+        ensure_demos(args.task, demos_dir, args.seed)
+    if args.device == "cuda" and not torch.cuda.is_available():
+        raise UsageError("--device cuda: torch.cuda.is_available() is False on this machine")
+    ds = load_demos(demos_dir)
+    if ds.task is not None and ds.task.name != args.task:
+        raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")
+    kw = {"tool": args.tool, "env": args.env, "seed": args.seed, "device": args.device}
+    for key, val in (("restarts", args.restarts), ("covariance", args.covariance)):
+        if val is not None:
+            kw[key] = val
+    kw["time_steps"] = args.time_steps or (ds.task.time_steps if ds.task else 24)
+    try:
+        cfg = FitConfig(**kw)
+    except ValueError as e:
+        raise UsageError(str(e)) from e
+    kin = KinematicModel.from_spec(ds.robot)
+    print(f"{len(ds.demos)} demonstrations, {ds.n_observations} observations, landmarks "
+          f"{list(ds.landmark_names)}; T={cfg.time_steps}, {cfg.restarts} restarts", flush=True)
+    log = Logger(out, ds.joint_names)
+    try:
+        result = fit(ds, kin, cfg, callback=log)
+    except ValueError as e:
+        raise UsageError(str(e)) from e
+    log.final(result)
+    m = result.model
+    m.save(out)
+    summary = {"learning_time_s": result.timings["total_s"], "n_demos": len(ds.demos),
+               "n_observations": ds.n_observations, "time_steps": cfg.time_steps, "restarts": cfg.restarts,
+               "covariance": cfg.covariance, "final_loss": result.final_loss,
+               "restart_losses": list(result.restart_losses), "em_iterations": list(result.em_iterations),
+               "tool_point": m.tool.cpu().tolist(),
+               "env_weights": {n: float(x) for n, x in zip(m.landmark_names, m.env.cpu().tolist())},
+               "env_weights_before_pruning": result.env_before_pruning,
+               "kept_landmarks": list(result.kept_landmarks), "virtual_det": list(result.virtual_det),
+               "warnings": list(result.warnings), "timings": result.timings}
+    gt = ds.ground_truth  # evaluation only: never passed to the fit
+    if gt:
+        if "tool_point" in gt:
+            summary["tool_point_error_m"] = float(np.linalg.norm(np.asarray(gt["tool_point"]) - m.tool.cpu().numpy()))
+        if "bowl_landmark" in gt:
+            summary["bowl_weight"] = result.env_before_pruning.get(gt["bowl_landmark"])
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print(f"learned in {summary['learning_time_s']:.1f}s: tool {np.round(m.tool.cpu().numpy(), 4).tolist()}, "
+          f"env {summary['env_weights']}; wrote {out}", flush=True)
+    for w in result.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    run_main(main, prog="train.py")
