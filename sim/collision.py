@@ -67,7 +67,8 @@ class CollisionFns:
 
     ``self_pairs``: the checked (moving link, robot link) index pairs; ``resolution``: the
     largest joint step (rad) between configurations checked along a segment; ``close()``
-    releases the shadow client (also done when the object is garbage collected).
+    releases the shadow client (also done when the closures are garbage collected or the
+    world is closed).
     """
 
     collision_fn: Callable[[np.ndarray], bool]
@@ -315,7 +316,9 @@ def make_collision_fns(world, obstacles: bool = True, resolution: float = 0.05, 
                     return True
         return False
 
-    fns = CollisionFns(collision_fn, batch_collision_fn, segment_fn, float(resolution), bool(obstacles), method,
-                       tuple(pairs), close)
-    weakref.finalize(fns, close)
-    return fns
+    # the shadow client lives as long as any closure does (callers often keep only collision_fn),
+    # and no longer than the world
+    weakref.finalize(check_here, close)
+    world.on_close(close)
+    return CollisionFns(collision_fn, batch_collision_fn, segment_fn, float(resolution), bool(obstacles), method,
+                        tuple(pairs), close)

@@ -62,7 +62,7 @@ MARKER_RADIUS = 0.015                    # visual-only landmark markers (powder 
 DEFAULT_XY = {
     "paper_towels": (0.65, 0.10),
     "vase": (1.10, 0.05),
-    "books": (1.12, 0.65),
+    "books": (1.05, -0.15),
     "lamp_shade": (0.85, 0.45),
     "scissors": (0.55, 0.00),
     "spoon": (1.05, 0.20),
@@ -108,8 +108,9 @@ PARTICLE_MASS = 0.002
 # forward (yaw 0.3 rad), gripper 2 cm above the table top + 0.22, tool centre over the source
 # container. Found with IK (most margin to the joint limits), collision-free with both tools.
 HOME_Q = np.array([0.495, -0.161, -0.056, 1.605, -2.161, 1.453, -1.645])
-RIGHT_ARM_TUCK = {"right_s0": -0.08, "right_s1": -1.0, "right_e0": 1.19, "right_e1": 1.94,
-                  "right_w0": -0.67, "right_w1": 1.03, "right_w2": 0.50}
+# Rethink's "tuck" pose of the right arm (baxter_tools tuck_arms.py): folded against the torso.
+RIGHT_ARM_TUCK = {"right_s0": 1.0, "right_s1": -2.07, "right_e0": -3.0, "right_e1": 2.55,
+                  "right_w0": 0.0, "right_w1": 0.01, "right_w2": 0.0}
 HEAD_PAN = 0.0
 GRIPPER_FINGERS = 0.01                   # prismatic finger joints (m), closed on the handle
 

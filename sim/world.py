@@ -83,6 +83,7 @@ class World:
         n_def, r_def = L.PARTICLES[task]
         n_particles = n_def if n_particles is None else int(n_particles)
         particle_radius = r_def if particle_radius is None else float(particle_radius)
+        self._close_callbacks = []
         self.client = p.connect(p.GUI if gui else p.DIRECT)
         try:
             self._build(n_particles, particle_radius, scenario)
@@ -142,7 +143,13 @@ class World:
                                         physicsClientId=c)
 
     # --- lifecycle ----------------------------------------------------------------------
+    def on_close(self, callback) -> None:
+        """Call ``callback()`` when this world is closed (e.g. to release a collision client)."""
+        self._close_callbacks.append(callback)
+
     def close(self) -> None:
+        while self._close_callbacks:
+            self._close_callbacks.pop()()
         if self.client is not None and p.isConnected(self.client):
             p.disconnect(self.client)
         self.client = None
@@ -314,7 +321,9 @@ def main(argv=None) -> int:
     ap.add_argument("--task", default="powder", help="powder (spoon) or pour (pitcher)")
     ap.add_argument("--gui", action="store_true", help="open the PyBullet GUI")
     ap.add_argument("--snapshot", metavar="FILE.png", help="render headless to this PNG")
-    ap.add_argument("--steps", type=int, default=0, help="physics steps before rendering")
+    ap.add_argument("--steps", type=int, default=120, help="physics steps before rendering")
+    ap.add_argument("--obstacles", action="store_true",
+                    help="place the four obstacles (paper towels, lamp shade, vase, books) at their default places")
     args = ap.parse_args(argv)
     if args.task not in TASKS:
         print(f"error: --task must be one of {', '.join(TASKS)}, got {args.task!r}", file=sys.stderr)
@@ -331,7 +340,8 @@ def main(argv=None) -> int:
             print(f"error: cannot write {out}: folder {out.parent} does not exist", file=sys.stderr)
             return 2
     try:
-        world = World(args.task, gui=args.gui)
+        scenario = {n: L.DEFAULT_XY[n] for n in ("paper_towels", "lamp_shade", "vase", "books")} if args.obstacles else None
+        world = World(args.task, gui=args.gui, scenario=scenario)
     except (ValueError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
