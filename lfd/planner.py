@@ -59,7 +59,8 @@ class PlanResult:
     (empty unless 'ok'); time_steps: (n,) int task time step of each waypoint; vertices: (n,)
     roadmap ids (-1 = the start configuration, -2 = the goal configuration); cost: path cost (inf
     unless 'ok'); n_edges_evaluated: roadmap edges whose cost this plan computed; latency_s: wall
-    time of ``plan``; stats: further counters (expanded nodes, step-cost rows, segment checks);
+    time of ``plan``; stats: further counters (expanded nodes, step-cost rows, segment checks,
+    ``cpu_s`` = process CPU time of the plan, a load-independent figure);
     message: a human-readable reason when not 'ok'.
     """
     status: str
@@ -142,7 +143,7 @@ class ClosedLoopPlanner:
         With ``q_goal (d,)`` the path must end at ``(q_goal, T-1)``; otherwise it ends at any
         vertex at step T-1. The returned waypoints start at ``q_current``.
         """
-        tic = time.perf_counter()
+        tic, cpu0 = time.perf_counter(), time.process_time()
         d = self.roadmap.d
         q = np.asarray(q_current, dtype=float).reshape(-1)
         if q.shape != (d,):
@@ -186,7 +187,7 @@ class ClosedLoopPlanner:
                  "points_evaluated": self.costs.counters["points"] - c0["points"],
                  "step_nll_calls": self.costs.counters["calls"] - c0["calls"],
                  "segment_checks": rm.counters["segment_checks"] - seg0,
-                 "expanded": n_exp}
+                 "expanded": n_exp, "cpu_s": time.process_time() - cpu0}
         if status != "ok":
             path, cost = (), math.inf
         return self._result(status, tic, message, path, cost, stats)

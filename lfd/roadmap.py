@@ -21,7 +21,8 @@ checking makes building a 5,000-vertex roadmap cost only the vertex checks; a pl
 edges its search touches (see benchmarks/planning.py for the measured numbers).
 
 Vertices live in a numpy array ``vertices: (n, d)``; edges in a ``networkx.Graph`` whose nodes are
-the integer vertex ids ``0..n-1``.
+the integer vertex ids ``0..n-1``, with attributes ``free`` (None = not checked yet, True) and
+``eid`` (a unique integer id, for caches that are arrays indexed by edge).
 """
 
 from __future__ import annotations
@@ -94,6 +95,7 @@ class Roadmap:
         self._buf = np.empty((0, self.d))
         self._n = 0
         self._tree: cKDTree | None = None
+        self._n_eids = 0  # edge ids are never reused, so caches keyed by them stay valid
         self.counters = {"vertex_checks": 0, "segment_checks": 0, "edges_removed": 0}
 
     # ------------------------------------------------------------------ construction
@@ -182,9 +184,10 @@ class Roadmap:
 
     def _add_edge(self, i: int, j: int) -> None:
         if self.settings.lazy:
-            self.graph.add_edge(i, j, free=None)
+            self.graph.add_edge(i, j, free=None, eid=self._n_eids)
         elif not self._segment_collides(self._buf[i], self._buf[j]):
-            self.graph.add_edge(i, j, free=True)
+            self.graph.add_edge(i, j, free=True, eid=self._n_eids)
+        self._n_eids += 1
 
     def _segment_collides(self, q1, q2) -> bool:
         self.counters["segment_checks"] += 1
@@ -202,6 +205,11 @@ class Roadmap:
         v = self._buf[:self._n]
         v.flags.writeable = False
         return v
+
+    @property
+    def n_edge_ids(self) -> int:
+        """Upper bound (exclusive) of the ``eid`` attribute of the graph's edges."""
+        return self._n_eids
 
     def k(self, n: int | None = None) -> int:
         """k_PRM* for ``n`` vertices (default: the current size)."""

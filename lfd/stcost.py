@@ -134,6 +134,10 @@ class SpatiotemporalCosts:
         self._in: dict[int, list[int]] = {}  # temp id -> roadmap ids with edges into it
         self._back: dict[int, list[int]] = {}  # roadmap id -> temp ids it has edges to
         self._relaxed: tuple | None = None  # (n, src, dst, tau) of the roadmap, for stheuristic
+        self._adjc: dict[int, tuple] = {}  # v -> (free nbrs, as array, eids): landmark-free
+        self._graph_size = roadmap.graph.number_of_nodes()
+        self._ecost = np.empty((roadmap.n_edge_ids, self.T))
+        self._ehave = np.zeros(roadmap.n_edge_ids, dtype=bool)
         self._epoch = 0
         self.counters = {"edges": 0, "points": 0, "calls": 0}
         self._reset()
@@ -148,10 +152,9 @@ class SpatiotemporalCosts:
         self._Grow: dict[int, int] = {}  # temp id -> row of _G
         self._Gsrc: dict[int, np.ndarray] = {}  # source-only temp id -> (T,) bound
         self._out: dict[int, tuple[list[int], np.ndarray]] = {}  # v -> (nbrs, (deg, T) costs)
-        self._edge: dict[tuple[int, int], np.ndarray] = {}  # roadmap edge (a < b) -> (T,) costs
+        self._ehave[:] = False  # roadmap edge costs, by edge id: _ecost[eid] valid iff _ehave
         self._tout: dict[int, tuple[list[int], np.ndarray]] = {}  # per plan, see set_temporary
         self._tedge: dict[tuple[int, int], np.ndarray] = {}  # per plan, edges with a temp vertex
-        self._graph_size = self.roadmap.graph.number_of_nodes()
 
     def set_step_nll(self, step_nll: Callable) -> None:
         """New landmarks: use ``step_nll`` from now on and drop every landmark-dependent cache."""
@@ -233,13 +236,14 @@ class SpatiotemporalCosts:
             shift = min(0.0, float(np.min(self._vraw))) if self.roadmap.n else 0.0
         if self._shift is None or shift != self._shift:
             self._shift = shift
-            self._out, self._edge, self._tout, self._tedge = {}, {}, {}, {}
-        if self._graph_size != self.roadmap.graph.number_of_nodes():  # grown: stale edge tables
+            self._out, self._tout, self._tedge = {}, {}, {}
+            self._ehave[:] = False
+        if self._graph_size != self.roadmap.graph.number_of_nodes():  # grown: stale adjacency
             self._graph_size = self.roadmap.graph.number_of_nodes()
             adj = self.roadmap.graph.adj
-            for v in [v for v, (nbrs, _) in self._out.items() if v >= 0]:
-                if len(adj[v]) != len(self._out[v][0]):
-                    del self._out[v]
+            for v in [v for v, a in self._adjc.items() if len(adj[v]) != len(a[0])]:
+                del self._adjc[v]
+                self._out.pop(v, None)
         for v in self._temp:
             self._raw(v)
         if self.settings.heuristic:
@@ -303,6 +307,22 @@ class SpatiotemporalCosts:
                                              self._tau(i, out), self.trans, self.time_offsets,
                                              self.dt)
 
+    def heuristic_fn(self) -> Callable | None:
+        """``h(node, target) -> float`` for networkx (None when disabled): ``heuristic`` over
+        Python lists, built once per plan, because A* calls it on every push."""
+        if self._G is None:
+            return None
+        rows = self._G.tolist()
+        temp = {i: (self._Gsrc[i].tolist() if i in self._Gsrc else rows[self._Grow[i]])
+                for i in self._temp}
+
+        def h(node, _target=None) -> float:
+            v, t = node
+            if v >= 0:
+                return rows[v][t]
+            return temp[v][t] if v in temp else 0.0  # the SINK node
+        return h
+
     def heuristic(self, v: int, t: int) -> float:
         """Consistent lower bound on the cost from ``(v, t)`` to step T-1 (0 when disabled)."""
         if self._G is None:
@@ -323,12 +343,31 @@ class SpatiotemporalCosts:
 
         For a roadmap vertex: its roadmap neighbours (unknown edges are collision-checked now);
         for a temporary vertex: the vertices it is joined to. Cached per landmark set (roadmap
-        vertices) or per plan (temporary vertices).
+        vertices, by edge id) or per plan (temporary vertices).
         """
         hit = self._out.get(v)
-        if hit is None:
-            nbrs = self._links.get(v, []) if v < 0 else self.roadmap.free_neighbors(v)
-            hit = self._out[v] = (nbrs, self._edge_table(v, nbrs))
+        if hit is not None:
+            return hit
+        if v < 0:
+            nbrs = self._links.get(v, [])
+            hit = self._out[v] = (nbrs, self._temp_table(v, nbrs))
+            return hit
+        a = self._adjc.get(v)
+        if a is None:
+            nbrs = self.roadmap.free_neighbors(v)
+            adj = self.roadmap.graph.adj[v]
+            a = self._adjc[v] = (nbrs, np.array(nbrs, dtype=int),
+                                 np.array([adj[w]["eid"] for w in nbrs], dtype=int))
+        nbrs, W, eids = a
+        if len(self._ehave) < self.roadmap.n_edge_ids:  # the roadmap grew
+            extra = self.roadmap.n_edge_ids - len(self._ehave)
+            self._ehave = np.concatenate([self._ehave, np.zeros(extra, dtype=bool)])
+            self._ecost = np.concatenate([self._ecost, np.empty((extra, self.T))])
+        miss = ~self._ehave[eids]
+        if miss.any():
+            self._ecost[eids[miss]] = self._integrate(v, W[miss])
+            self._ehave[eids[miss]] = True
+        hit = self._out[v] = (nbrs, self._ecost[eids])
         return hit
 
     def temporary_spatial(self, v: int) -> tuple[list[int], np.ndarray]:
@@ -336,27 +375,37 @@ class SpatiotemporalCosts:
         hit = self._tout.get(v)
         if hit is None:
             nbrs = self._back.get(v, [])
-            hit = self._tout[v] = (nbrs, self._edge_table(v, nbrs))
+            hit = self._tout[v] = (nbrs, self._temp_table(v, nbrs))
         return hit
 
-    def _edge_table(self, v: int, nbrs: list[int]) -> np.ndarray:
-        """Costs ``(len(nbrs), T)`` of edges ``v-w``; all missing ones evaluated in one call."""
+    def _temp_table(self, v: int, nbrs: list[int]) -> np.ndarray:
+        """Costs ``(len(nbrs), T)`` of the per-plan edges ``v-w`` (one of them temporary)."""
         C = np.empty((len(nbrs), self.T))
-        todo, keys = [], []
+        todo = []
         for i, w in enumerate(nbrs):
-            key = (v, w) if v < w else (w, v)
-            vec = (self._tedge if key[0] < 0 else self._edge).get(key)
+            vec = self._tedge.get((v, w) if v < w else (w, v))
             if vec is None:
                 todo.append(i)
-                keys.append(key)
             else:
                 C[i] = vec
-        if not todo:
-            return C
-        W = [nbrs[i] for i in todo]
-        self._ensure_vertices([w for w in W if w >= 0] + ([v] if v >= 0 else []))
+        if todo:
+            C[todo] = self._integrate(v, [nbrs[i] for i in todo])
+            for i in todo:
+                w = nbrs[i]
+                self._tedge[(v, w) if v < w else (w, v)] = C[i]
+        return C
+
+    def _integrate(self, v: int, W) -> np.ndarray:
+        """Costs ``(E, T)`` of the edges ``v-w``, w in ``W``: one ``step_nll`` call for all
+        interior quadrature nodes (trapezoid rule, see the module docstring)."""
+        W = list(W) if not isinstance(W, np.ndarray) else W
+        roadmap_only = min(W) >= 0
+        if roadmap_only:
+            self._ensure_vertices(np.append(W, v) if v >= 0 else W)
+            QW = self.roadmap._buf[W]
+        else:
+            QW = np.array([self._pos(w) for w in W])  # (E, d)
         qv = self._pos(v)
-        QW = np.array([self._pos(w) for w in W])  # (E, d)
         tau = np.max(np.abs(QW - qv) / self.vmax, axis=1)  # (E,) traversal times
         m = np.maximum(1, np.ceil(tau / self.quad_dt - 1e-9)).astype(int)  # (E,) sub-intervals
         n_in = m - 1
@@ -371,12 +420,9 @@ class SpatiotemporalCosts:
             sums[has] = np.add.reduceat(Lin, first[has], axis=0)
         self.counters["edges"] += len(W)
         ev = self.ell(self._raw(v))  # (T,)
-        EW = self.ell(self._vraw[W] if min(W) >= 0 else np.array([self._raw(w) for w in W]))
+        EW = self.ell(self._vraw[W] if roadmap_only else np.array([self._raw(w) for w in W]))
         mean = (0.5 * (ev[None] + EW) + sums) / m[:, None]  # trapezoid rule, (E, T)
         with np.errstate(invalid="ignore"):
             vecs = (tau / self.dt)[:, None] * (self.trans[None, :, 0] + mean)
         vecs[np.isnan(vecs)] = np.inf  # tau = 0 with a forbidden self-transition
-        for i, key, vec in zip(todo, keys, vecs):
-            (self._tedge if key[0] < 0 else self._edge)[key] = vec
-            C[i] = vec
-        return C
+        return vecs

@@ -121,9 +121,6 @@ class LazyProductGraph(nx.DiGraph):
             succ[SINK] = 0.0
         return succ
 
-    def heuristic(self, node, _target=None) -> float:
-        return 0.0 if node == SINK else self.costs.heuristic(node[0], node[1])
-
 
 def _stored_cost(_u, _v, cost):
     return cost
@@ -154,7 +151,7 @@ def search(costs: SpatiotemporalCosts, start_vertex: int, t_start: int,
     if source not in G:
         raise ValueError(f"Expected start_vertex to be a vertex of the roadmap, got {start_vertex}")
     tic = time.perf_counter()
-    h = G.heuristic if costs.settings.heuristic else None
+    h = costs.heuristic_fn()
     try:
         path = nx.astar_path(G, source, G.target, heuristic=h, weight=_stored_cost)
     except nx.NetworkXNoPath:

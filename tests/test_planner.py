@@ -301,7 +301,7 @@ def test_caches_stay_bounded_over_many_replans(toy):
         q = rng.uniform(-1, 1, 2)
         planner.plan(q, int(rng.integers(0, T2)))
         c = planner.costs
-        assert len(c._edge) <= n_edges and len(c._out) <= toy.n
+        assert len(c._ecost) == toy.n_edge_ids and len(c._out) <= toy.n + 2
         assert len(c._temp) <= 2 and len(c._tedge) <= 2 * toy.k(toy.n + 1) + 1
     assert toy.n == 180
 
