@@ -31,6 +31,10 @@ FLOOR_Z = -0.926                         # bottom of Baxter's pedestal
 SQUARE_SIDE = 0.762                      # 30 inches
 SQUARE_HALF = SQUARE_SIDE / 2.0
 SQUARE_CENTER_XY = (0.82, 0.35)          # x in [0.44, 1.20], y in [-0.03, 0.73]
+# Checked with IK (sim side, collision-free without obstacles): the pitcher held level with its
+# centre 0.15 m above the table reaches the centre, the edge midpoints and the corner
+# (0.44, 0.73); the near-right corner (0.44, -0.03) needs yaw -1.2 rad, and the two far corners
+# (1.20, -0.03) / (1.20, 0.73) are reached only with the tool 0.25 m above the table.
 
 # --- containers (base frame of each body: centre of its bottom, on the table) --------
 BOWL_RADIUS = 0.09                       # inner radius at the rim
@@ -105,8 +109,8 @@ PARTICLE_MASS = 0.002
 
 # --- robot poses ---------------------------------------------------------------------
 # Left arm (left_s0, s1, e0, e1, w0, w1, w2): the tool level (its up = world +z), pointing
-# forward (yaw 0.3 rad), gripper 2 cm above the table top + 0.22, tool centre over the source
-# container. Found with IK (most margin to the joint limits), collision-free with both tools.
+# forward (yaw 0.3 rad), gripper at z = 0.02 (0.22 m above the table top), tool centre over the
+# source container. Found with IK (most margin to the joint limits), collision-free with both tools.
 HOME_Q = np.array([0.495, -0.161, -0.056, 1.605, -2.161, 1.453, -1.645])
 # Rethink's "tuck" pose of the right arm (baxter_tools tuck_arms.py): folded against the torso.
 RIGHT_ARM_TUCK = {"right_s0": 1.0, "right_s1": -2.07, "right_e0": -3.0, "right_e1": 2.55,

@@ -16,6 +16,7 @@ Command line: ``python -m sim.world [--task powder|pour] [--gui] [--snapshot FIL
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 from pathlib import Path
@@ -84,7 +85,13 @@ class World:
         n_particles = n_def if n_particles is None else int(n_particles)
         particle_radius = r_def if particle_radius is None else float(particle_radius)
         self._close_callbacks = []
+        self.client = None
+        if gui and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+            raise RuntimeError("the PyBullet GUI needs a display (DISPLAY is not set); use --snapshot")
         self.client = p.connect(p.GUI if gui else p.DIRECT)
+        if self.client < 0:
+            self.client = None
+            raise RuntimeError("cannot connect to PyBullet" + (" GUI (is there a display?)" if gui else ""))
         try:
             self._build(n_particles, particle_radius, scenario)
         except Exception:
@@ -342,7 +349,7 @@ def main(argv=None) -> int:
     try:
         scenario = {n: L.DEFAULT_XY[n] for n in ("paper_towels", "lamp_shade", "vase", "books")} if args.obstacles else None
         world = World(args.task, gui=args.gui, scenario=scenario)
-    except (ValueError, FileNotFoundError) as e:
+    except (ValueError, FileNotFoundError, RuntimeError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     with world:
