@@ -17,7 +17,7 @@ import pybullet as p
 
 from sim import layout as L
 
-__all__ = ["Box", "tool_boxes", "tool_link_urdf", "build_table", "build_bowl", "build_source",
+__all__ = ["tool_boxes", "tool_link_urdf", "build_table", "build_bowl", "build_source",
            "build_paper_towels", "build_lamp_shade", "build_vase", "build_books",
            "build_small_item", "build_marker", "BUILDERS", "COLORS"]
 
@@ -27,10 +27,6 @@ COLORS = {
     "pitcher": (0.8, 0.8, 0.85, 1.0), "marker": (1.0, 0.2, 0.8, 1.0), "item": (0.5, 0.5, 0.5, 1.0),
     "books": ((0.6, 0.1, 0.1, 1.0), (0.1, 0.2, 0.6, 1.0), (0.2, 0.5, 0.2, 1.0)),
 }
-
-# A box: (centre (3,), half extents (3,), yaw about the body z axis / or a quaternion).
-Box = tuple
-
 
 def _ring(radius_mid, thickness, y_or_z_range, segments, axis="z", skip=()):
     """Boxes approximating a cylindrical wall around the ``axis`` through the origin.

@@ -20,6 +20,21 @@ def steps(seconds: float) -> int:
     return int(round(seconds / L.SIM_DT))
 
 
+def tilt_q(degrees: float) -> np.ndarray:
+    """HOME_Q with the wrist rolled (about the gripper z axis) by ``degrees``."""
+    q = L.HOME_Q.copy()
+    q[6] += np.deg2rad(degrees)
+    return q
+
+
+def roll_wrist(world, degrees: float, seconds: float) -> None:
+    """Drive the wrist roll (about the gripper z axis) from HOME_Q by ``degrees`` under physics."""
+    n = steps(seconds)
+    for k in range(n):
+        world.command_q(tilt_q(degrees * (k + 1) / n))
+        world.step()
+
+
 def test_tool_is_level_at_home(world):
     world.set_q(L.HOME_Q)
     up = world.T_world_tool()[:3, 1]  # the tool's "up" is the gripper's +y
@@ -38,12 +53,7 @@ def test_tilting_past_90_degrees_empties_the_tool(world):
     world.set_q(L.HOME_Q)
     world.respawn_particles()
     world.step(steps(0.5))
-    n = steps(1.0)
-    for k in range(n):  # roll the wrist (about the gripper z axis) by 120 deg in 1 s
-        q = L.HOME_Q.copy()
-        q[6] += np.deg2rad(120) * (k + 1) / n
-        world.command_q(q)
-        world.step()
+    roll_wrist(world, 120, seconds=1.0)
     world.step(steps(1.0))
     up = world.T_world_tool()[:3, 1]
     assert up[2] < 0.0  # past 90 deg
@@ -63,13 +73,6 @@ def test_bad_particle_arguments():
         cavity_points("soup", 10, 0.005)
 
 
-def tilt_q(degrees: float) -> np.ndarray:
-    """HOME_Q with the wrist rolled (about the gripper z axis) by ``degrees``."""
-    q = L.HOME_Q.copy()
-    q[6] += np.deg2rad(degrees)
-    return q
-
-
 def test_dumping_over_the_bowl_fills_it(world):
     """The bowl moved under the rim the tilted tool pours over catches what it drops."""
     # rolling about +z lowers the tool's -x side: the lip is the rim there (gripper frame)
@@ -84,12 +87,7 @@ def test_dumping_over_the_bowl_fills_it(world):
     try:
         world.respawn_particles()
         world.step(steps(0.5))
-        n = steps(1.0)
-        for k in range(n):
-            q = L.HOME_Q.copy()
-            q[6] += np.deg2rad(120) * (k + 1) / n
-            world.command_q(q)
-            world.step()
+        roll_wrist(world, 120, seconds=1.0)
         world.step(steps(1.0))
         assert world.fraction_in_bowl() >= 0.7
     finally:
