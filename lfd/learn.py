@@ -58,7 +58,7 @@ class FitConfig:
         With 'full', zeta enters the likelihood only through the task features' residual
         *given* the joints; as the tool point's world position is a smooth function of q,
         changing the tool point is largely absorbed by that regression and the tool point is
-        nearly unidentifiable (measured: 20-38 cm error vs 0.5-2 cm for 'block' on synthetic
+        nearly unidentifiable (measured: 17-45 cm error vs 0.5-2.2 cm for 'block' on synthetic
         data with known truth, see benchmarks/learning.py --compare).
     logdet_scale : ``s`` in ``s log|Sigma|`` (1 = maximum likelihood).
     floor_joint, floor_task : the variance-floor prior's standard deviations (lfd.priors).
