@@ -191,8 +191,10 @@ class TaskPlanner:
                                      settings=s.roadmap)
         self.stats["vertices_added"] = self.roadmap.n
         self._grown_for.append(self._landmarks[:, :3, 3].cpu().numpy())
+        # step_nll is in Eq. 3 units (log|Sigma| + Mahalanobis^2 = 2 x nll + const), so the
+        # transition term must be -2 log p(t'|t): hand the planner 2 log p as its "log_trans".
         self.planner = ClosedLoopPlanner(
-            self.roadmap, self._step_nll_factory, self.model.log_trans.detach().cpu().numpy(),
+            self.roadmap, self._step_nll_factory, 2.0 * self.model.log_trans.detach().cpu().numpy(),
             dt=float(self.model.task.dt) if self.model.task else 0.1,
             vmax=self.kin.velocity.cpu().numpy(), offsets=self.model.offsets, settings=s.planner)
 
