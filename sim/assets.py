@@ -17,7 +17,7 @@ import pybullet as p
 
 from sim import layout as L
 
-__all__ = ["tool_boxes", "tool_link_urdf", "build_table", "build_bowl", "build_source",
+__all__ = ["tool_boxes", "tool_link_urdf", "build_floor", "build_table", "build_bowl", "build_source",
            "build_paper_towels", "build_lamp_shade", "build_vase", "build_books",
            "build_small_item", "build_marker", "BUILDERS", "COLORS"]
 
@@ -128,6 +128,14 @@ def _compound(client, boxes, rgba, cylinders=(), collide=True):
     body = p.createMultiBody(0, col, vis, physicsClientId=client)
     p.changeVisualShape(body, -1, rgbaColor=rgba, physicsClientId=client)
     return body
+
+
+def build_floor(client: int) -> int:
+    """The floor: a static plane at ``FLOOR_Z`` (catches spilled particles)."""
+    col = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=client)
+    vis = p.createVisualShape(p.GEOM_BOX, halfExtents=(3, 3, 0.001), visualFramePosition=(0, 0, -0.001),
+                              rgbaColor=(0.85, 0.85, 0.82, 1.0), physicsClientId=client)
+    return p.createMultiBody(0, col, vis, basePosition=(0, 0, L.FLOOR_Z), physicsClientId=client)
 
 
 def build_table(client: int) -> int:

@@ -127,6 +127,7 @@ class World:
             if name in self.joint_index:
                 p.resetJointState(self.robot, self.joint_index[name], L.GRIPPER_FINGERS, physicsClientId=c)
         self._hold_all_joints()
+        self.floor = assets.build_floor(c)
         self.table = assets.build_table(c)
         self.objects: dict[str, int] = {}
         self.scene_version = 0  # bumped whenever an object is placed, moved or removed
