@@ -22,7 +22,8 @@ configurations (``benchmarks/collision.py``):
   of the robot (self collision enabled for exactly the checked pairs, via collision filter
   pairs), the table and copies of the obstacles; one ``performCollisionDetection`` per
   configuration, then ``getContactPoints``. The world's client is only read, never written:
-  its joints, tool and particles are untouched by construction.
+  its joints, tool and particles are untouched by construction. The rest of the robot (right
+  arm, head, fingers) is copied once, at setup.
 * ``"inplace"``: in the world's own client, an AABB prefilter per link pair, then
   ``getClosestPoints(distance=0)`` on the overlapping pairs; a context manager restores the
   arm's joint positions and velocities after every call.

@@ -291,16 +291,16 @@ class World:
         return particle_positions(self.client, self.particles)
 
     def fraction_in_bowl(self, particles: ParticleSet | None = None) -> float:
-        pts = particle_positions(self.client, particles or self.particles)
+        pts = particle_positions(self.client, self.particles if particles is None else particles)
         return float(in_bowl_mask(pts, self.object_pose("bowl")).mean()) if len(pts) else 0.0
 
     def fraction_in_tool(self, particles: ParticleSet | None = None) -> float:
-        pts = particle_positions(self.client, particles or self.particles)
+        pts = particle_positions(self.client, self.particles if particles is None else particles)
         return float(in_tool_mask(pts, self.T_world_tool(), self.task).mean()) if len(pts) else 0.0
 
     def fraction_spilled(self, particles: ParticleSet | None = None) -> float:
         """Neither in the bowl nor in the tool."""
-        pts = particle_positions(self.client, particles or self.particles)
+        pts = particle_positions(self.client, self.particles if particles is None else particles)
         if not len(pts):
             return 0.0
         kept = in_bowl_mask(pts, self.object_pose("bowl")) | in_tool_mask(pts, self.T_world_tool(), self.task)
