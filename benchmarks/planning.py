@@ -82,7 +82,7 @@ def percentile(x, p):
     return float(np.percentile(np.asarray(x), p)) if len(x) else float("nan")
 
 
-def replan_series(planner, first, moves: int, rng, closed_loop: bool) -> dict:
+def replan_series(planner, first, moves: int, rng, closed_loop: bool, move_sigma: float) -> dict:
     """Move the landmarks ``moves`` times, replanning after each move; latency statistics."""
     a_hat = np.zeros(7)
     q0 = first.configurations[0]
@@ -93,7 +93,7 @@ def replan_series(planner, first, moves: int, rng, closed_loop: bool) -> dict:
             q, t = plan.configurations[1], int(plan.time_steps[1])
         if not closed_loop or t >= T - 1:
             q, t = q0, 0
-        a_hat = a_hat + rng.normal(0, 0.05, 7)  # the landmarks move
+        a_hat = a_hat + rng.normal(0, move_sigma, 7)  # the landmarks move (a random walk)
         planner.update_landmarks(a_hat)
         plan = planner.plan(q, t)
         wall.append(plan.latency_s)
@@ -108,7 +108,7 @@ def replan_series(planner, first, moves: int, rng, closed_loop: bool) -> dict:
             "edges_evaluated_max": max(s.get("edges_evaluated", 0) for s in stats)}
 
 
-def run_size(n: int, moves: int, seed: int, eager_compare: bool) -> dict:
+def run_size(n: int, moves: int, seed: int, eager_compare: bool, move_sigma: float) -> dict:
     rng = np.random.default_rng(seed)
     collision_fn, batch_collision_fn, segment_fn = make_world(rng)
     ends = rng.uniform(LOWER * 0.7, UPPER * 0.7, (2, 7))
@@ -135,8 +135,8 @@ def run_size(n: int, moves: int, seed: int, eager_compare: bool) -> dict:
     first = planner.plan(q, 0)
     out["first_plan"] = {"status": first.status, "latency_s": first.latency_s,
                          "cost": first.cost, "waypoints": len(first.time_steps), **first.stats}
-    out["closed_loop"] = replan_series(planner, first, moves, rng, closed_loop=True)
-    out["from_start"] = replan_series(planner, first, moves, rng, closed_loop=False)
+    out["closed_loop"] = replan_series(planner, first, moves, rng, True, move_sigma)
+    out["from_start"] = replan_series(planner, first, moves, rng, False, move_sigma)
     if eager_compare:
         tic = time.perf_counter()
         Roadmap.build(lambda m: samples[:m] if m == 2 * n else sample_fn(m), n, collision_fn,
@@ -151,6 +151,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 5000])
     ap.add_argument("--moves", type=int, default=30)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--move-sigma", type=float, default=0.05,
+                    help="std (rad) per joint of each landmark move of the Gaussians' means")
     ap.add_argument("--no-eager", action="store_true", help="skip the eager-build comparison")
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "bench" / "planning.json")
     args = ap.parse_args(argv)
@@ -159,9 +161,11 @@ def main(argv=None) -> dict:
     torch.set_num_threads(1)
     report = {"setting": {"d": 7, "T": T, "dt": DT, "vmax": VMAX.tolist(), "sigma": SIGMA,
                           "obstacles": "4 spheres r=0.6 in joint space", "torch_threads": 1,
+                          "move_sigma": args.move_sigma, "moves": args.moves, "seed": args.seed,
                           "machine": platform.processor() or platform.machine()},
               "targets_s": {"1000": 0.050, "5000": 0.200},
-              "runs": [run_size(n, args.moves, args.seed, not args.no_eager) for n in args.sizes]}
+              "runs": [run_size(n, args.moves, args.seed, not args.no_eager, args.move_sigma)
+                       for n in args.sizes]}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2))
     return report

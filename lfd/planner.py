@@ -173,7 +173,7 @@ class ClosedLoopPlanner:
         self.costs.set_temporary(temps, links, in_links)
         status, message, path, cost, n_exp = "ok", "", (), math.inf, 0
         try:
-            self.costs.prepare()
+            self.costs.prepare(int(t_current))
             res = search(self.costs, START, int(t_current), None if g is None else GOAL,
                          self.settings.max_expansions)
             path, cost, n_exp = res.nodes, res.cost, res.n_expanded

@@ -66,7 +66,7 @@ class CostSettings:
     quad_dt: float | None = None
     nll_floor: float | None = None
     heuristic: bool = True
-    heuristic_sweeps: int = 2
+    heuristic_sweeps: int = 3
     max_batch: int = 16384
     dtype: torch.dtype = torch.float64
 
@@ -148,7 +148,7 @@ class SpatiotemporalCosts:
         self._tempraw: dict[int, np.ndarray] = {}
         self._shift: float | None = None
         self._G: np.ndarray | None = None  # heuristic rows: roadmap, then temps with in-edges
-        self._Gkey = None
+        self._Gkey, self._Gtmin = None, 0
         self._Grow: dict[int, int] = {}  # temp id -> row of _G
         self._Gsrc: dict[int, np.ndarray] = {}  # source-only temp id -> (T,) bound
         self._out: dict[int, tuple[list[int], np.ndarray]] = {}  # v -> (nbrs, (deg, T) costs)
@@ -225,8 +225,9 @@ class SpatiotemporalCosts:
             self._ensure_vertices([v])
         return self._vraw[v]
 
-    def prepare(self) -> None:
-        """Per plan: vertex costs and shift (and the heuristic) for the current landmarks."""
+    def prepare(self, t_start: int = 0) -> None:
+        """Per plan: vertex costs and shift (and the heuristic from step ``t_start`` on) for the
+        current landmarks."""
         need_all = self.settings.heuristic or self.settings.nll_floor is None
         if need_all:
             self._ensure_vertices(np.arange(self.roadmap.n))
@@ -247,7 +248,7 @@ class SpatiotemporalCosts:
         for v in self._temp:
             self._raw(v)
         if self.settings.heuristic:
-            self._heuristic_table()
+            self._heuristic_table(t_start)
         else:
             self._G = None
 
@@ -266,21 +267,25 @@ class SpatiotemporalCosts:
             src, dst = src[order], dst[order]
             V = self.roadmap._buf
             tau = np.max(np.abs(V[dst] - V[src]) / self.vmax, axis=1) if len(src) else np.zeros(0)
-            self._relaxed = (n, src, dst, tau)
+            self._relaxed = (n, src, dst, tau, self._subintervals(tau))
         return self._relaxed[1:]
+
+    def _subintervals(self, tau: np.ndarray) -> np.ndarray:
+        """Quadrature sub-intervals m (the rule of ``_integrate``) of edges with traversal times tau."""
+        return np.maximum(1, np.ceil(tau / self.quad_dt - 1e-9)).astype(int)
 
     def _tau(self, v: int, ws) -> np.ndarray:
         Q = np.array([self._pos(w) for w in ws]).reshape(len(ws), self.roadmap.d)
         return np.max(np.abs(Q - self._pos(v)) / self.vmax, axis=1)
 
-    def _heuristic_table(self) -> None:
+    def _heuristic_table(self, t_start: int) -> None:
         """Consistent A* bounds (lfd.stheuristic) for the roadmap, the goal and the start."""
         n = self.roadmap.n
         sinks = [i for i in sorted(self._temp) if self._in[i]]
         key = (self._epoch, n, self._shift, self.settings.heuristic_sweeps,
                tuple((i, self._temp[i].tobytes(), tuple(self._in[i]), tuple(self._links[i]))
                      for i in sinks))
-        if key != self._Gkey:
+        if key != self._Gkey or t_start < self._Gtmin:
             self._Grow = {i: n + j for j, i in enumerate(sinks)}
             ell = self.ell(np.concatenate([self._vraw[:n]] + [self._raw(i)[None] for i in sinks]))
             xs, xd, xt = [], [], []
@@ -292,20 +297,22 @@ class SpatiotemporalCosts:
                 xs += [self._Grow[i]] * len(out)
                 xd += [w if w >= 0 else self._Grow[w] for w in out]
                 xt.append(self._tau(i, out))
-            extra = (np.array(xs, dtype=int), np.array(xd, dtype=int),
-                     np.concatenate(xt)) if xs else None
-            src, dst, tau = self._relaxed_edges()
+            xt = np.concatenate(xt) if xs else None
+            extra = (np.array(xs, dtype=int), np.array(xd, dtype=int), xt,
+                     self._subintervals(xt)) if xs else None
+            src, dst, tau, m = self._relaxed_edges()
             self._G = relaxed_cost_to_go(ell, self.trans, self.time_offsets, self.dt, src, dst,
-                                         tau, self.settings.heuristic_sweeps, extra)
-            self._Gkey = key
+                                         tau, m, self.settings.heuristic_sweeps, extra, t_start)
+            self._Gell, self._Gkey, self._Gtmin = ell, key, t_start
         self._Gsrc = {}
         for i in self._temp:
             if i not in self._Grow:
                 out = [w for w in self._links[i] if w >= 0 or w in self._Grow]
                 rows = np.array([w if w >= 0 else self._Grow[w] for w in out], dtype=int)
-                self._Gsrc[i] = source_bound(self.ell(self._raw(i)), self._G, rows,
-                                             self._tau(i, out), self.trans, self.time_offsets,
-                                             self.dt)
+                tau = self._tau(i, out)
+                self._Gsrc[i] = source_bound(self.ell(self._raw(i)), self._G, self._Gell, rows,
+                                             tau, self._subintervals(tau), self.trans,
+                                             self.time_offsets, self.dt)
 
     def heuristic_fn(self) -> Callable | None:
         """``h(node, target) -> float`` for networkx (None when disabled): ``heuristic`` over
@@ -407,7 +414,7 @@ class SpatiotemporalCosts:
             QW = np.array([self._pos(w) for w in W])  # (E, d)
         qv = self._pos(v)
         tau = np.max(np.abs(QW - qv) / self.vmax, axis=1)  # (E,) traversal times
-        m = np.maximum(1, np.ceil(tau / self.quad_dt - 1e-9)).astype(int)  # (E,) sub-intervals
+        m = self._subintervals(tau)  # (E,) quadrature sub-intervals
         n_in = m - 1
         sums = np.zeros((len(W), self.T))  # sum of ell over each edge's interior nodes
         if n_in.sum():

@@ -1,8 +1,10 @@
 """A consistent A* heuristic for the spatiotemporal roadmap: cost-to-go of a relaxed problem.
 
 Relaxation: a roadmap edge ``u-w`` at step t really costs
-``(tau/dt) * (-log p(t|t) + mean ell along the edge)``; the relaxed problem keeps only
-``w_uw(t) = (tau/dt) * (-log p(t|t))`` (ell >= 0), and keeps every time edge exactly. Its
+``(tau/dt) * (-log p(t|t) + mean ell along the edge)``, the mean being the trapezoid rule on
+``m`` sub-intervals; the relaxed problem drops the interior nodes (ell >= 0) and keeps
+``w_uw(t) = (tau/dt) * (-log p(t|t) + (ell(u, t) + ell(w, t)) / (2 m))`` (exact when m = 1), and
+keeps every time edge exactly. Its
 cost-to-go ``H(v, t)`` is a lower bound of the true one. We compute lower bounds ``G_j <= H``
 backwards over t, vectorized over all vertices:
 
@@ -40,7 +42,8 @@ def time_only_bound(trans: np.ndarray, min_ell: np.ndarray, offsets) -> np.ndarr
 
 
 def relaxed_cost_to_go(ell: np.ndarray, trans: np.ndarray, offsets, dt: float, src: np.ndarray,
-                       dst: np.ndarray, tau: np.ndarray, sweeps: int, extra=None) -> np.ndarray:
+                       dst: np.ndarray, tau: np.ndarray, m: np.ndarray, sweeps: int,
+                       extra=None, t_min: int = 0) -> np.ndarray:
     """``G: (N, T)`` consistent lower bounds of the cost-to-go of every vertex and step.
 
     Parameters
@@ -48,51 +51,65 @@ def relaxed_cost_to_go(ell: np.ndarray, trans: np.ndarray, offsets, dt: float, s
     ell : (N, T) shifted step cost of every vertex (roadmap vertices and temporary ones).
     trans : (T, K') -log transition probabilities by offset (column 0: stay).
     offsets : time offsets k > 0.
-    src, dst, tau : (M,) directed edges (both directions of every roadmap edge) sorted by
-        ``src``, and their traversal times (s).
+    src, dst, tau, m : (M,) directed edges (both directions of every roadmap edge) sorted by
+        ``src``, their traversal times (s) and quadrature sub-intervals.
     sweeps : number of move-first relaxations per step (0: ``G = h`` for every vertex).
-    extra : optional (src, dst, tau) of further directed edges, in any order (e.g. into a goal).
+    extra : optional (src, dst, tau, m) of further directed edges, in any order (e.g. into a
+        goal).
+    t_min : steps before it (that a search starting at t_min never reaches) get ``G = h``,
+        which keeps G consistent everywhere.
     """
     N, T = ell.shape
     h = time_only_bound(trans, ell.min(axis=0), offsets)
-    G = np.zeros((N, T))
+    ellT = np.ascontiguousarray(ell.T)  # (T, N): contiguous rows per step
+    GT = np.zeros((T, N))
+    GT[:t_min] = h[:t_min, None]
     starts = np.searchsorted(src, np.arange(N))  # first out-edge of each vertex
     has = np.bincount(src, minlength=N) > 0 if len(src) else np.zeros(N, dtype=bool)
-    for t in range(T - 2, -1, -1):
+    first = starts[has]
+    half_inv_m = 0.5 / m
+    tau_dt = tau / dt
+    for t in range(T - 2, t_min - 1, -1):
         term = np.full(N, np.inf)
         for k in offsets:
             if t + k < T and np.isfinite(trans[t, k]):
-                term = np.minimum(term, trans[t, k] + ell[:, t + k] + G[:, t + k])
+                term = np.minimum(term, trans[t, k] + ellT[t + k] + GT[t + k])
         g = np.minimum(term, h[t])
         stay = trans[t, 0]
-        if np.isfinite(stay) and len(src):
-            w = tau * (stay / dt)
+        if sweeps and np.isfinite(stay) and (len(src) or extra is not None):
+            e = ellT[t]
+            w = tau_dt * (stay + (e[src] + e[dst]) * half_inv_m)
+            if extra is not None:
+                xs, xd, xt, xm = extra
+                xw = (xt / dt) * (stay + (e[xs] + e[xd]) / (2 * xm))
             for _ in range(sweeps):
-                best = np.minimum.reduceat(w + g[dst], starts[has])
                 g_new = term.copy()
-                g_new[has] = np.minimum(term[has], best)
+                if len(first):
+                    g_new[has] = np.minimum(term[has], np.minimum.reduceat(w + g[dst], first))
                 if extra is not None:
-                    np.minimum.at(g_new, extra[0], extra[2] * (stay / dt) + g[extra[1]])
+                    np.minimum.at(g_new, xs, xw + g[xd])
                 g = g_new
-        elif not np.isfinite(stay):
+        if not np.isfinite(stay):
             g = term  # no moving at this step: advancing at v is the only option
-        G[:, t] = g
-    return G
+        GT[t] = g
+    return GT.T
 
 
-def source_bound(ell_s: np.ndarray, G: np.ndarray, nbrs: np.ndarray, tau: np.ndarray,
-                 trans: np.ndarray, offsets, dt: float) -> np.ndarray:
+def source_bound(ell_s: np.ndarray, G: np.ndarray, ell: np.ndarray, nbrs: np.ndarray,
+                 tau: np.ndarray, m: np.ndarray, trans: np.ndarray, offsets, dt: float) -> np.ndarray:
     """``(T,)`` consistent bound for a vertex with out-edges only (the robot's configuration).
 
-    ell_s : (T,) its shifted step cost; G : (N, T) from ``relaxed_cost_to_go``; nbrs : (m,) rows
-    of G it has edges to, with traversal times tau : (m,). One move-first relaxation on top of
-    the final G, so ``G_s <= w + G[u]`` for its edges and ``G_s(t) <= c + G_s(t + k)`` in time.
+    ell_s : (T,) its shifted step cost; G, ell : (N, T) from/as given to ``relaxed_cost_to_go``;
+    nbrs : (E,) rows of G it has edges to, with traversal times tau and sub-intervals m (E,). One
+    move-first relaxation on top of the final G, so ``G_s <= w + G[u]`` for its edges and
+    ``G_s(t) <= c + G_s(t + k)`` in time.
     """
     T = len(ell_s)
     g = np.zeros(T)
     for t in range(T - 2, -1, -1):
         term = min((trans[t, k] + ell_s[t + k] + g[t + k] for k in offsets if t + k < T),
                    default=np.inf)
-        move = np.min(tau * (trans[t, 0] / dt) + G[nbrs, t]) if len(nbrs) else np.inf
+        w = (tau / dt) * (trans[t, 0] + (ell_s[t] + ell[nbrs, t]) / (2 * m))
+        move = np.min(w + G[nbrs, t]) if len(nbrs) else np.inf
         g[t] = min(term, move)
     return g

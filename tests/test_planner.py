@@ -177,13 +177,14 @@ def test_goal_configuration_and_known_floor(toy):
     assert res.cost == pytest.approx(ref, rel=1e-9)
 
 
-def test_heuristic_is_admissible_and_consistent(toy):
+@pytest.mark.parametrize("t_start", [0, 3])
+def test_heuristic_is_admissible_and_consistent(toy, t_start):
     means = arc_means(T2)
     costs = SpatiotemporalCosts(toy, log_trans_table(T2), DT, VMAX2)
     costs.set_step_nll(gaussian_factory()(means))
     q0 = np.array([-0.7, 0.05])
     costs.set_temporary({-1: q0}, {-1: toy.connect_point(q0)})
-    costs.prepare()
+    costs.prepare(t_start)
     G = reference_graph(toy, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2, q0)
     to_go = nx.single_source_dijkstra_path_length(G.reverse(copy=False), "sink")
 
