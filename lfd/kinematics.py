@@ -11,6 +11,7 @@ Conventions (written once, used everywhere in lfd):
 
 from __future__ import annotations
 
+import copy
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -125,7 +126,8 @@ class KinematicModel:
         new.__dict__.update(self.__dict__)
         new.dtype = dtype or self.dtype
         new.device = torch.device(device) if device is not None else self.device
-        new._chain = self._chain.to(dtype=new.dtype, device=new.device)
+        # pytorch-kinematics converts a chain in place: convert a copy, never the original.
+        new._chain = copy.deepcopy(self._chain).to(dtype=new.dtype, device=new.device)
         for k in ("lower", "upper", "velocity"):
             setattr(new, k, getattr(self, k).to(dtype=new.dtype, device=new.device))
         return new

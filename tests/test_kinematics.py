@@ -107,8 +107,6 @@ def test_wrong_configuration_length(kin64, world):
         world.set_q(np.zeros(8))
 
 
-@pytest.mark.xfail(reason="KinematicModel.to() shares the pytorch-kinematics chain, whose .to() is "
-                          "in place: converting a copy converts the original (lfd/kinematics.py)")
 def test_to_leaves_the_original_model_alone():
     kin = KinematicModel.from_spec(BAXTER_LEFT, dtype=torch.float64)
     kin.to(dtype=torch.float32)
