@@ -146,13 +146,13 @@ class ClosedLoopPlanner:
         tic, cpu0 = time.perf_counter(), time.process_time()
         d = self.roadmap.d
         q = np.asarray(q_current, dtype=float).reshape(-1)
-        if q.shape != (d,):
-            raise ValueError(f"Expected q_current with shape ({d},), got {q.shape}")
+        if q.shape != (d,) or not np.all(np.isfinite(q)):
+            raise ValueError(f"Expected q_current finite with shape ({d},), got {q}")
         if int(t_current) != t_current or not 0 <= t_current < self.T:
             raise ValueError(f"Expected t_current an integer in [0, {self.T - 1}], got {t_current}")
         g = None if q_goal is None else np.asarray(q_goal, dtype=float).reshape(-1)
-        if g is not None and g.shape != (d,):
-            raise ValueError(f"Expected q_goal with shape ({d},), got {g.shape}")
+        if g is not None and (g.shape != (d,) or not np.all(np.isfinite(g))):
+            raise ValueError(f"Expected q_goal finite with shape ({d},), got {g}")
         if self._landmark_error is not None:
             return self._result("missing_landmark", tic, self._landmark_error)
         rm = self.roadmap

@@ -49,7 +49,7 @@ import torch
 from lfd.roadmap import Roadmap
 from lfd.stheuristic import relaxed_cost_to_go, source_bound
 
-__all__ = ["CostSettings", "CostError", "SpatiotemporalCosts", "segment_nodes"]
+__all__ = ["CostSettings", "CostError", "SpatiotemporalCosts"]
 
 
 class CostError(ValueError):
@@ -77,15 +77,6 @@ class CostSettings:
             raise ValueError(f"Expected heuristic_sweeps >= 0, got {self.heuristic_sweeps}")
         if self.max_batch < 1:
             raise ValueError(f"Expected max_batch >= 1, got {self.max_batch}")
-
-
-def segment_nodes(q1: np.ndarray, q2: np.ndarray, vmax: np.ndarray, quad_dt: float):
-    """Traversal time ``tau`` and the ``m + 1`` quadrature nodes ``(m + 1, d)`` of segment q1-q2
-    (the rule ``SpatiotemporalCosts`` applies, in vectorized form, to many edges at once)."""
-    tau = float(np.max(np.abs(q2 - q1) / vmax))
-    m = max(1, math.ceil(tau / quad_dt - 1e-9))
-    s = np.linspace(0.0, 1.0, m + 1)[:, None]
-    return tau, q1[None, :] * (1.0 - s) + q2[None, :] * s
 
 
 class SpatiotemporalCosts:
@@ -171,7 +162,8 @@ class SpatiotemporalCosts:
         for i in [i for i in self._out if i < 0]:
             del self._out[i]
         self._tout, self._tedge = {}, {}
-        self._temp = {i: np.asarray(q, dtype=float).reshape(self.roadmap.d) for i, q in temps.items()}
+        d = self.roadmap.d
+        self._temp = {i: np.asarray(q, dtype=float).reshape(d) for i, q in temps.items()}
         self._links = {i: list(links.get(i, [])) for i in self._temp}
         self._in = {i: list((in_links or {}).get(i, [])) for i in self._temp}
         self._back = {}
@@ -188,8 +180,11 @@ class SpatiotemporalCosts:
         out = np.empty((len(Q), self.T))
         for a in range(0, len(Q), self.settings.max_batch):
             chunk = torch.tensor(Q[a:a + self.settings.max_batch], dtype=self.settings.dtype)
-            with torch.no_grad():
-                L = self._step_nll(chunk)
+            try:
+                with torch.no_grad():
+                    L = self._step_nll(chunk)
+            except Exception as e:  # the model's failure becomes the plan's status, not a crash
+                raise CostError(f"step_nll failed: {e!r}") from e
             L = np.asarray(L.detach().cpu() if hasattr(L, "detach") else L, dtype=float)
             if L.shape != (len(chunk), self.T):
                 raise CostError(f"Expected step_nll to return shape ({len(chunk)}, {self.T}), "
@@ -271,7 +266,7 @@ class SpatiotemporalCosts:
         return self._relaxed[1:]
 
     def _subintervals(self, tau: np.ndarray) -> np.ndarray:
-        """Quadrature sub-intervals m (the rule of ``_integrate``) of edges with traversal times tau."""
+        """Quadrature sub-intervals m (the rule of ``_integrate``) for traversal times tau."""
         return np.maximum(1, np.ceil(tau / self.quad_dt - 1e-9)).astype(int)
 
     def _tau(self, v: int, ws) -> np.ndarray:

@@ -5,7 +5,8 @@ Nodes are ``(v, t)``: a roadmap vertex id ``v`` (ids < 0 are the temporary verti
 step ``t`` in ``0..T-1``. Edges (graph Cartesian product of the roadmap and the time-step graph):
 
 * ``(v, t) -> (v, t + k)`` for each permitted offset ``k > 0`` (``SpatiotemporalCosts.time_cost``);
-* ``(u, t) -> (w, t)`` for each collision-free roadmap edge ``u-w`` (``SpatiotemporalCosts.spatial``);
+* ``(u, t) -> (w, t)`` for each collision-free roadmap edge ``u-w``
+  (``SpatiotemporalCosts.spatial``);
 * ``(START, t) -> (w, t)`` for the roadmap vertices ``w`` the robot's configuration is joined to,
   and ``(u, t) -> (GOAL, t)`` for those joined to the goal: START is a source and GOAL a sink
   (paths never come back to the robot's current configuration, nor leave the goal's);
@@ -16,7 +17,8 @@ Materializing the product (n * T nodes, ~n * T * k edges) would cost seconds at 
 most of it is never reached. ``LazyProductGraph`` is a real ``nx.DiGraph`` whose successor mapping
 ``_adj`` builds a node's out-edges (with their costs) the first time the search reads them, which
 is when networkx pops that node. ``nx.astar_path`` runs on it unchanged, with a callable weight that
-returns the stored cost, and ``SpatiotemporalCosts.heuristic`` (lfd.stheuristic, consistent) as the heuristic; with
+returns the stored cost, and ``SpatiotemporalCosts.heuristic_fn`` (lfd.stheuristic, consistent)
+as the heuristic; with
 ``heuristic=False`` it is Dijkstra's algorithm. The graph lives for one search only.
 """
 

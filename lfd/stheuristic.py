@@ -96,7 +96,8 @@ def relaxed_cost_to_go(ell: np.ndarray, trans: np.ndarray, offsets, dt: float, s
 
 
 def source_bound(ell_s: np.ndarray, G: np.ndarray, ell: np.ndarray, nbrs: np.ndarray,
-                 tau: np.ndarray, m: np.ndarray, trans: np.ndarray, offsets, dt: float) -> np.ndarray:
+                 tau: np.ndarray, m: np.ndarray, trans: np.ndarray, offsets,
+                 dt: float) -> np.ndarray:
     """``(T,)`` consistent bound for a vertex with out-edges only (the robot's configuration).
 
     ell_s : (T,) its shifted step cost; G, ell : (N, T) from/as given to ``relaxed_cost_to_go``;

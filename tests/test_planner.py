@@ -10,7 +10,7 @@ import torch
 
 from lfd.planner import ClosedLoopPlanner, PlannerSettings
 from lfd.roadmap import Roadmap, k_prm_star
-from lfd.stcost import CostSettings, SpatiotemporalCosts, segment_nodes
+from lfd.stcost import CostSettings, SpatiotemporalCosts
 
 # ---------------------------------------------------------------- toy world (d = 2)
 BOX_LO, BOX_HI = np.array([0.15, 0.35]), np.array([0.45, 0.9])  # cuts the arc of the means
@@ -115,7 +115,8 @@ def reference_cost(rm, step_nll, log_trans, dt, vmax, q_start, t_start, q_goal=N
 
 def make_planner(rm, means, heuristic=True, **cost_kw):
     p = ClosedLoopPlanner(rm, gaussian_factory(), log_trans_table(len(means)), DT, VMAX2,
-                          settings=PlannerSettings(cost=CostSettings(heuristic=heuristic, **cost_kw)))
+                          settings=PlannerSettings(cost=CostSettings(heuristic=heuristic,
+                                                                     **cost_kw)))
     p.update_landmarks(means)
     return p
 
@@ -189,7 +190,9 @@ def test_heuristic_is_admissible_and_consistent(toy, t_start):
     to_go = nx.single_source_dijkstra_path_length(G.reverse(copy=False), "sink")
 
     def h(node):
-        return 0.0 if node == "sink" else costs.heuristic(-1 if node[0] == "s" else node[0], node[1])
+        if node == "sink":
+            return 0.0
+        return costs.heuristic(-1 if node[0] == "s" else node[0], node[1])
     for node, dist in to_go.items():  # exact cost-to-go from every node >= h
         assert h(node) <= dist + 1e-9
     for a, b, c in G.edges(data="weight"):  # consistency: h(a) <= c(a, b) + h(b)
@@ -219,7 +222,6 @@ def test_edge_integral_converges_with_resolution():
         errs.append(abs(C[0, 0] - tau / 0.1 * exact_mean[0]))
     assert errs[0] > errs[1] > errs[2] and errs[2] < 1e-3 * tau / 0.1
     assert errs[1] / errs[2] == pytest.approx(25.0, rel=0.05)  # second order
-    assert segment_nodes(a, b, np.array([1.0, 1.0]), 0.1)[1].shape == (11, 2)
 
 
 def test_d7_random_matches_reference():
@@ -257,6 +259,8 @@ def test_statuses(toy):
     assert p2.plan(q0, 0).ok
 
     p.update_landmarks(means)
+    done = p.plan(q0, T2 - 1)  # already at the last step: the plan is where the robot is
+    assert done.ok and done.configurations.shape == (1, 2) and done.cost == 0.0
     assert p.plan(np.array([0.3, 0.5]), 0).status == "start_in_collision"
     r = p.plan(q0, 0, q_goal=np.array([0.3, 0.5]))
     assert r.status == "goal_in_collision" and r.configurations.shape == (0, 2)
@@ -273,6 +277,15 @@ def test_statuses(toy):
                             log_trans_table(T2), DT, VMAX2)
     bad.update_landmarks(means)
     assert bad.plan(q0, 0).status == "invalid_cost"
+
+    def broken(a_hat):
+        def step_nll(Q):
+            raise RuntimeError("model exploded")
+        return step_nll
+    worse = ClosedLoopPlanner(toy, broken, log_trans_table(T2), DT, VMAX2)
+    worse.update_landmarks(means)
+    r = worse.plan(q0, 0)
+    assert r.status == "invalid_cost" and "model exploded" in r.message
     with pytest.raises(ValueError, match="q_current"):
         p.plan(np.zeros(3), 0)
     with pytest.raises(ValueError, match="t_current"):
