@@ -18,8 +18,7 @@ most of it is never reached. ``LazyProductGraph`` is a real ``nx.DiGraph`` whose
 ``_adj`` builds a node's out-edges (with their costs) the first time the search reads them, which
 is when networkx pops that node. ``nx.astar_path`` runs on it unchanged, with a callable weight that
 returns the stored cost, and ``SpatiotemporalCosts.heuristic_fn`` (lfd.stheuristic, consistent)
-as the heuristic; with
-``heuristic=False`` it is Dijkstra's algorithm. The graph lives for one search only.
+as the heuristic; with ``heuristic=False`` it is Dijkstra's algorithm. The graph lives for one search only.
 """
 
 from __future__ import annotations
