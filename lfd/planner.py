@@ -129,7 +129,7 @@ class ClosedLoopPlanner:
 
     def _result(self, status, tic, message="", path=(), cost=math.inf, stats=None) -> PlanResult:
         d = self.roadmap.d
-        conf = np.array([self.costs._pos(v) for v, _ in path]).reshape(len(path), d)
+        conf = np.array([self.costs.position(v) for v, _ in path]).reshape(len(path), d)
         return PlanResult(status=status, configurations=conf,
                           time_steps=np.array([t for _, t in path], dtype=int),
                           vertices=np.array([v for v, _ in path], dtype=int), cost=float(cost),

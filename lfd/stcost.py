@@ -196,7 +196,8 @@ class SpatiotemporalCosts:
         self.counters["points"] += len(Q)
         return out
 
-    def _pos(self, v: int) -> np.ndarray:
+    def position(self, v: int) -> np.ndarray:
+        """(d,) configuration of vertex ``v`` (roadmap id, or a temporary id < 0)."""
         return self._temp[v] if v < 0 else self.roadmap._buf[v]
 
     def _ensure_vertices(self, ids) -> None:
@@ -270,8 +271,8 @@ class SpatiotemporalCosts:
         return np.maximum(1, np.ceil(tau / self.quad_dt - 1e-9)).astype(int)
 
     def _tau(self, v: int, ws) -> np.ndarray:
-        Q = np.array([self._pos(w) for w in ws]).reshape(len(ws), self.roadmap.d)
-        return np.max(np.abs(Q - self._pos(v)) / self.vmax, axis=1)
+        Q = np.array([self.position(w) for w in ws]).reshape(len(ws), self.roadmap.d)
+        return np.max(np.abs(Q - self.position(v)) / self.vmax, axis=1)
 
     def _heuristic_table(self, t_start: int) -> None:
         """Consistent A* bounds (lfd.stheuristic) for the roadmap, the goal and the start."""
@@ -372,6 +373,14 @@ class SpatiotemporalCosts:
         hit = self._out[v] = (nbrs, self._ecost[eids])
         return hit
 
+    def has_vertex(self, v: int) -> bool:
+        """Whether ``v`` is a roadmap vertex or a current temporary vertex."""
+        return 0 <= v < self.roadmap.n or v in self._temp
+
+    def joins_temporary(self, v: int) -> bool:
+        """Whether roadmap vertex ``v`` has edges to temporary vertices in this plan."""
+        return v in self._back
+
     def temporary_spatial(self, v: int) -> tuple[list[int], np.ndarray]:
         """Edges from roadmap vertex ``v`` to the temporary vertices joined to it (per plan)."""
         hit = self._tout.get(v)
@@ -406,8 +415,8 @@ class SpatiotemporalCosts:
             self._ensure_vertices(np.append(W, v) if v >= 0 else W)
             QW = self.roadmap._buf[W]
         else:
-            QW = np.array([self._pos(w) for w in W])  # (E, d)
-        qv = self._pos(v)
+            QW = np.array([self.position(w) for w in W])  # (E, d)
+        qv = self.position(v)
         tau = np.max(np.abs(QW - qv) / self.vmax, axis=1)  # (E,) traversal times
         m = self._subintervals(tau)  # (E,) quadrature sub-intervals
         n_in = m - 1

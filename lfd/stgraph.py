@@ -96,8 +96,7 @@ class LazyProductGraph(nx.DiGraph):
             v, t = node
         except (TypeError, ValueError):
             return False
-        in_roadmap = 0 <= v < self.costs.roadmap.n or v in self.costs._temp
-        return bool(in_roadmap and 0 <= t < self.T)
+        return bool(self.costs.has_vertex(v) and 0 <= t < self.T)
 
     def successors_with_costs(self, node) -> dict:
         if node == SINK:
@@ -110,7 +109,7 @@ class LazyProductGraph(nx.DiGraph):
         nbrs, C = c.spatial(v)
         col = C[:, t].tolist() if len(nbrs) else []
         succ = {(w, t): x for w, x in zip(nbrs, col) if x < math.inf}
-        if v >= 0 and v in c._back:  # edges to the temporary vertices joined to v
+        if v >= 0 and c.joins_temporary(v):  # edges to the temporary vertices joined to v
             tn, tC = c.temporary_spatial(v)
             succ.update({(w, t): x for w, x in zip(tn, tC[:, t].tolist()) if x < math.inf})
         for k in c.time_offsets:
