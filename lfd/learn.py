@@ -26,6 +26,7 @@ steps relative to the bowl dominate the objective. Nothing else is done about it
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 import warnings
@@ -35,12 +36,14 @@ from typing import Callable
 import numpy as np
 import torch
 
-from lfd.dtw import dtw_align, min_samples, random_alignment
-from lfd.model import (COVARIANCES, OFFSETS, TaskModel, aligned_nll_tensor, landmarks_inverse_tensor,
-                       step_nll_tensor)
-from lfd.priors import estimate_log_trans, floor_prior, volume_prior
+from lfd.checkpoint import CheckpointError, FitProgress, config_record, demos_fingerprint
+from lfd.dtw import min_samples, random_alignment
+from lfd.em import EM_FAILURES, EMFitter, FitData
+from lfd.model import COVARIANCES, OFFSETS, TaskModel
 
-__all__ = ["FitConfig", "FitResult", "fit", "TOOL_MODES", "ENV_MODES", "M_STEPS"]
+__all__ = ["FitConfig", "FitResult", "fit", "initial_guesses", "TOOL_MODES", "ENV_MODES", "M_STEPS"]
+
+_Data, _Fitter = FitData, EMFitter  # former private names (tests reach in)
 
 TOOL_MODES = ("learn", "gripper", "tip")
 ENV_MODES = ("learn", "bowl")
@@ -132,214 +135,7 @@ class FitResult:
     virtual_det: tuple[float, ...]  # |det A| of K_virt^-1's linear part, per demonstration
     warnings: tuple[str, ...]
     timings: dict
-
-
-class _Data:
-    """The demonstrations as tensors, and everything that does not depend on zeta or eta."""
-
-    def __init__(self, demoset, kin, dtype, device):
-        self.M = len(demoset.demos)
-        self.lengths = [d.n_samples for d in demoset.demos]
-        self.N = sum(self.lengths)
-        q = np.concatenate([d.q for d in demoset.demos])
-        self.q = torch.as_tensor(q, dtype=dtype, device=device)  # (N, d)
-        self.demo = torch.repeat_interleave(torch.arange(self.M, device=device),
-                                            torch.tensor(self.lengths, device=device))  # (N,)
-        self.sample = torch.cat([torch.arange(n, device=device) for n in self.lengths])  # (N,)
-        with torch.no_grad():
-            self.T_world_ee = kin.to(dtype, device).fk(self.q)  # (N, 4, 4), computed once
-        lm = np.stack([d.landmarks for d in demoset.demos])  # (M, Z, 4, 4)
-        self.T_lm_world = landmarks_inverse_tensor(torch.as_tensor(lm, dtype=dtype, device=device))
-        self.counts = torch.tensor(self.lengths, dtype=dtype, device=device)
-
-    def features(self, tool, w, T_lm_world=None):
-        """``f (N, F)`` and the per-demo linear parts ``A (M, 3, 3)``."""
-        K = torch.einsum("z,mzij->mij", w, self.T_lm_world if T_lm_world is None else T_lm_world)
-        p_world = self.T_world_ee[:, :3, :3] @ tool + self.T_world_ee[:, :3, 3]  # (N, 3)
-        Kn = K[self.demo]  # (N, 4, 4)
-        x = torch.einsum("nij,nj->ni", Kn[:, :3, :3], p_world) + Kn[:, :3, 3]
-        return torch.cat([self.q, x], dim=1), K[:, :3, :3]
-
-    def pad(self, per_obs):
-        """``(N, T)`` -> ``(M, S_max, T)`` (padding holds zeros)."""
-        out = per_obs.new_zeros(self.M, max(self.lengths), per_obs.shape[1])
-        out[self.demo, self.sample] = per_obs
-        return out
-
-
-class _Fitter:
-    def __init__(self, data: _Data, cfg: FitConfig, dtype, device, landmark_idx):
-        self.data, self.cfg, self.dtype, self.device = data, cfg, dtype, device
-        self.T, self.K = cfg.time_steps, len(cfg.offsets)
-        d = data.q.shape[1]
-        self.d, self.F = d, d + 3
-        self.T_lm = data.T_lm_world[:, landmark_idx]  # (M, Z', 4, 4)
-        self.Z = len(landmark_idx)
-        self.floor = torch.tensor([cfg.floor_joint] * d + [cfg.floor_task] * 3, dtype=dtype, device=device)
-        self.nu = float(cfg.floor_weight) if cfg.floor_weight is not None else data.N / self.T
-        self.s = float(cfg.logdet_scale)
-        mask = torch.ones(self.F, self.F, dtype=dtype, device=device)
-        if cfg.covariance == "block":
-            mask[d:, :d] = 0
-            mask[:d, d:] = 0
-        self.mask = mask
-        if self.Z > 1:  # orthonormal basis of {u : sum u = 0}
-            Q, _ = torch.linalg.qr(torch.cat([torch.ones(self.Z, 1, dtype=dtype, device=device),
-                                              torch.eye(self.Z, dtype=dtype, device=device)], 1))
-            self.B = Q[:, 1:self.Z]
-        else:
-            self.B = torch.zeros(1, 0, dtype=dtype, device=device)
-
-    # -- pieces of the objective
-    def zeta_terms(self, tool, w, A):
-        out = volume_prior(A, self.data.counts) if self.cfg.volume_prior else tool.new_zeros(())
-        if self.cfg.zeta_prior is not None:
-            out = out + self.cfg.zeta_prior(tool, w)
-        return out
-
-    def closed_form(self, f, t_idx):
-        """Per-step ``mu (T, F)``, ``Sigma (T, F, F)``, counts ``n (T,)`` (eta-optimum for this zeta).
-
-        Sums over the observations of each step are products with the one-hot ``E (T, N)``
-        (``index_add_`` on CPU is an order of magnitude slower, forward and backward)."""
-        E = self._onehot(t_idx)
-        n = E.sum(1)
-        mu = (E @ f) / n.clamp(min=1)[:, None]
-        c = f - mu[t_idx]  # (N, F)
-        S = (E[:, :, None] * c[None]).transpose(1, 2) @ c  # (T, F, F)
-        Psi = torch.diag(self.floor ** 2)
-        Sigma = (S + self.nu * Psi) / (self.s * n.clamp(min=1))[:, None, None] * self.mask
-        return mu, Sigma, n
-
-    def _onehot(self, t_idx):
-        if getattr(self, "_onehot_key", None) is not t_idx:
-            self._onehot_key = t_idx
-            self._onehot_val = torch.nn.functional.one_hot(t_idx, self.T).T.to(self.dtype)  # (T, N)
-        return self._onehot_val
-
-    def profiled(self, tool, w, t_idx):
-        f, A = self.data.features(tool, w, self.T_lm)
-        _, Sigma, n = self.closed_form(f, t_idx)
-        logdet = 2 * torch.log(torch.diagonal(torch.linalg.cholesky(Sigma), dim1=-2, dim2=-1)).sum(-1)
-        return (self.s * n * (logdet + self.F)).sum() + self.zeta_terms(tool, w, A)
-
-    def eta_from(self, tool, w, t_idx):
-        with torch.no_grad():
-            f, _ = self.data.features(tool, w, self.T_lm)
-            mu, Sigma, n = self.closed_form(f, t_idx)
-            empty = (n == 0).nonzero().flatten().tolist()
-            full = (n > 0).nonzero().flatten()
-            for t in empty:  # a step every demonstration skipped: copy the nearest step with data
-                src = full[(full - t).abs().argmin()]
-                mu[t], Sigma[t] = mu[src], Sigma[src]
-            L = torch.linalg.cholesky(Sigma)
-            eye = torch.eye(self.F, dtype=self.dtype, device=self.device).expand_as(L)
-            return mu, torch.linalg.solve_triangular(L, eye, upper=False)
-
-    def joint_loss(self, tool, w, mu, sigma_inv, t_idx):
-        f, A = self.data.features(tool, w, self.T_lm)
-        out = aligned_nll_tensor(f, t_idx, mu, sigma_inv, self.s).sum()
-        out = out + floor_prior(sigma_inv, self.floor, self.nu) + self.zeta_terms(tool, w, A)
-        if self.cfg.eta_prior is not None:
-            out = out + self.cfg.eta_prior(mu, sigma_inv)
-        return out
-
-    # -- steps
-    def _lbfgs(self, params, closure, max_iter):
-        opt = torch.optim.LBFGS(params, lr=1.0, max_iter=max_iter, history_size=self.cfg.lbfgs_history,
-                                tolerance_grad=self.cfg.lbfgs_tol_grad, tolerance_change=1e-12,
-                                line_search_fn="strong_wolfe")
-        opt.step(closure)
-
-    def m_step(self, tool, w, t_idx, learn_tool, learn_env):
-        N = self.data.N
-        tool_p = tool.clone().requires_grad_(learn_tool)
-        u = torch.zeros(self.B.shape[1], dtype=self.dtype, device=self.device, requires_grad=learn_env)
-        params = [p for p, on in ((tool_p, learn_tool), (u, learn_env and self.Z > 1)) if on]
-
-        def closure():
-            opt_zero(params)
-            loss = self.profiled(tool_p, w + self.B @ u, t_idx) / N
-            if loss.requires_grad:
-                loss.backward()
-            return loss
-
-        if params:
-            self._lbfgs(params, closure, self.cfg.lbfgs_max_iter)
-        tool, w = tool_p.detach(), (w + self.B @ u).detach()
-        w = w - (w.sum() - 1) / self.Z
-        mu, sigma_inv = self.eta_from(tool, w, t_idx)
-        if self.cfg.m_step == "joint" or self.cfg.eta_prior is not None:
-            tool, w, mu, sigma_inv = self.joint_polish(tool, w, mu, sigma_inv, t_idx, learn_tool, learn_env)
-        return tool, w, mu, sigma_inv
-
-    def joint_polish(self, tool, w, mu, sigma_inv, t_idx, learn_tool, learn_env):
-        """LBFGS over zeta and eta together (eta as mu, log-diagonal, strictly-lower part)."""
-        N = self.data.N
-        tool_p = tool.clone().requires_grad_(learn_tool)
-        u = torch.zeros(self.B.shape[1], dtype=self.dtype, device=self.device, requires_grad=learn_env)
-        mu_p = mu.clone().requires_grad_(True)
-        logd = torch.log(torch.diagonal(sigma_inv, dim1=-2, dim2=-1)).clone().requires_grad_(True)
-        low = torch.tril(sigma_inv, -1).clone().requires_grad_(True)
-        lmask = torch.tril(self.mask, -1)
-        params = [mu_p, logd, low] + [p for p, on in ((tool_p, learn_tool), (u, learn_env and self.Z > 1)) if on]
-
-        def build():
-            return low * lmask + torch.diag_embed(torch.exp(logd))
-
-        def closure():
-            opt_zero(params)
-            loss = self.joint_loss(tool_p, w + self.B @ u, mu_p, build(), t_idx) / N
-            loss.backward()
-            return loss
-
-        self._lbfgs(params, closure, self.cfg.joint_max_iter)
-        w = (w + self.B @ u).detach()
-        return tool_p.detach(), w - (w.sum() - 1) / self.Z, mu_p.detach(), build().detach()
-
-    def e_step(self, tool, w, mu, sigma_inv, log_trans):
-        with torch.no_grad():
-            f, _ = self.data.features(tool, w, self.T_lm)
-            cost = self.data.pad(step_nll_tensor(f, mu, sigma_inv, self.s))  # (M, S_max, T)
-            align, values = dtw_align(cost, self.data.lengths, -2.0 * log_trans, self.cfg.offsets)
-        return align, values
-
-    def total_loss(self, tool, w, mu, sigma_inv, values):
-        """Negative log posterior per observation given the DTW values of the current alignment."""
-        with torch.no_grad():
-            f, A = self.data.features(tool, w, self.T_lm)
-            out = values.sum() + floor_prior(sigma_inv, self.floor, self.nu) + self.zeta_terms(tool, w, A)
-            if self.cfg.eta_prior is not None:
-                out = out + self.cfg.eta_prior(mu, sigma_inv)
-        return float(out) / self.data.N
-
-    def em(self, tool, w, align, learn_tool, learn_env, on_iter=None):
-        """Alternate M and E steps from an initial alignment; returns the state and loss history."""
-        history, state = [], None
-        for it in range(self.cfg.max_em_iters):
-            t_idx = torch.as_tensor(np.concatenate(align), device=self.device)
-            log_trans = estimate_log_trans(align, self.T, self.cfg.offsets, self.cfg.trans_floor,
-                                           self.dtype, self.device)
-            tool, w, mu, sigma_inv = self.m_step(tool, w, t_idx, learn_tool, learn_env)
-            new_align, values = self.e_step(tool, w, mu, sigma_inv, log_trans)
-            loss = self.total_loss(tool, w, mu, sigma_inv, values)
-            if not math.isfinite(loss) or not all(torch.isfinite(x).all() for x in (tool, w, mu, sigma_inv)):
-                raise FloatingPointError(f"non-finite loss at EM iteration {it + 1}")
-            history.append(loss)
-            state = (tool, w, mu, sigma_inv, log_trans, new_align)
-            if on_iter is not None:
-                on_iter(it, loss, state)
-            same = all(np.array_equal(a, b) for a, b in zip(align, new_align))
-            align = new_align
-            if same or (len(history) > 1 and abs(history[-2] - history[-1]) < self.cfg.em_tol):
-                break
-        return state, history
-
-
-def opt_zero(params):
-    for p in params:
-        if p.grad is not None:
-            p.grad = None
+    resumed_restarts: int = 0  # restarts taken from a checkpoint instead of run
 
 
 def _resolve(cfg: FitConfig):
@@ -348,7 +144,25 @@ def _resolve(cfg: FitConfig):
     return DTYPES[cfg.dtype], torch.device(cfg.device)
 
 
-def fit(demoset, kin, config: FitConfig | None = None, callback=None) -> FitResult:
+def initial_guesses(seed: int, lengths, time_steps: int, n_landmarks: int, cfg: "FitConfig",
+                    fixed_tool=None, fixed_env=None):
+    """Yield each restart's start ``(alignments, tool0 (3,), w0 (Z,))``, drawn in turn from one
+    generator seeded with ``seed``: a pure function of its arguments, so a fit resumed after
+    ``k`` restarts skips ``k`` of them and continues exactly where an uninterrupted fit would."""
+    rng = np.random.default_rng(seed)
+    Z = n_landmarks
+    for r in itertools.count():
+        align = [random_alignment(n, time_steps, rng, cfg.offsets) for n in lengths]
+        if fixed_tool is not None:
+            tool0 = np.asarray(fixed_tool, dtype=float)
+        else:
+            tool0 = np.zeros(3) if r == 0 else rng.normal(0.0, cfg.tool_init_std, 3)
+        w0 = fixed_env if fixed_env is not None else (np.full(Z, 1.0 / Z) if r == 0 else rng.dirichlet(np.ones(Z)))
+        yield align, tool0, w0
+
+
+def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart=None,
+        resume: FitProgress | None = None) -> FitResult:
     """Learn a ``TaskModel`` from a ``DemoSet`` (Sec. IV).
 
     Parameters
@@ -358,26 +172,65 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None) -> FitResu
     config : FitConfig (defaults when None).
     callback : called as ``callback(event: dict)`` after every EM iteration with keys
         ``stage`` ('restart' | 'refit'), ``restart``, ``iteration``, ``loss``, ``tool``, ``env``
-        (numpy), ``landmarks`` (names), ``alignments``, ``features`` (N, F) tensor.
+        (numpy), ``landmarks`` (names), ``alignments``, ``mu``, ``sigma_inv``.
+    on_restart : called as ``on_restart(progress: lfd.checkpoint.FitProgress)`` after every
+        restart, finished or dropped (``lfd.checkpoint.save_checkpoint`` stores it).
+    resume : a ``FitProgress`` of an earlier fit with the same config and demonstrations; its
+        restarts are not run again; the starts come from ``initial_guesses``, so the result
+        equals an uninterrupted fit's.
 
     Raises
     ------
     ValueError
         bad settings, demonstrations too short for the time steps, a mode that needs
         ``demoset.task`` without one, or every restart failing.
+    lfd.checkpoint.CheckpointError (a ValueError)
+        ``resume`` made for other demonstrations or settings.
     """
     cfg = config or FitConfig()
     dtype, device = _resolve(cfg)
+    if resume is not None:
+        why = resume.mismatch(config_record(cfg), demos_fingerprint(demoset))
+        where = resume.source or "the checkpoint"
+        if why is None and resume.restarts_done > cfg.restarts:
+            why = f"has {resume.restarts_done} restarts, more than the {cfg.restarts} asked for"
+        if why:
+            raise CheckpointError(f"{where}: cannot resume, the checkpoint was {why}")
     threads = torch.get_num_threads()
     if cfg.num_threads is not None:
         torch.set_num_threads(int(cfg.num_threads))
     try:
-        return _fit(demoset, kin, cfg, callback, dtype, device)
+        return _fit(demoset, kin, cfg, callback, dtype, device, on_restart, resume)
     finally:
         torch.set_num_threads(threads)
 
 
-def _fit(demoset, kin, cfg, callback, dtype, device) -> FitResult:
+def _restore(progress: FitProgress, data: FitData, dtype, device):
+    """``(restart, state)`` of a checkpoint's best restart, in the fit's dtype and device."""
+    if progress.best_state is None:
+        return None
+    st = progress.best_state
+    if st["alignment"].numel() != data.N:
+        raise CheckpointError(f"{progress.source}: alignment of {st['alignment'].numel()} samples, "
+                              f"the demonstrations have {data.N}")
+    splits = np.cumsum(data.lengths)[:-1]
+    align = [a.astype(np.int64) for a in np.split(st["alignment"].numpy(), splits)]
+    tensors = tuple(st[k].to(dtype=dtype, device=device) for k in ("tool", "env", "mu", "sigma_inv", "log_trans"))
+    return progress.best_restart, (*tensors, align)
+
+
+def _progress(cfg, fingerprint, histories, losses, iters, notes, best) -> FitProgress:
+    state = None
+    if best is not None:
+        tool, w, mu, sigma_inv, log_trans, align = best[1]
+        state = {"tool": tool, "env": w, "mu": mu, "sigma_inv": sigma_inv, "log_trans": log_trans,
+                 "alignment": torch.as_tensor(np.concatenate(align).astype(np.int64))}
+    return FitProgress(config=config_record(cfg), fingerprint=fingerprint, restart_losses=tuple(losses),
+                       loss_history=tuple(histories), em_iterations=tuple(iters), notes=tuple(notes),
+                       best_restart=None if best is None else best[0], best_state=state)
+
+
+def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=None) -> FitResult:
     t0 = time.perf_counter()
     names = tuple(demoset.landmark_names)
     Z, T = len(names), cfg.time_steps
@@ -389,11 +242,10 @@ def _fit(demoset, kin, cfg, callback, dtype, device) -> FitResult:
     if cfg.tool == "tip" or cfg.env == "bowl":
         if demoset.task is None:
             raise ValueError(f"tool={cfg.tool!r}, env={cfg.env!r} need the demonstrations' task.json")
-    data = _Data(demoset, kin, dtype, device)
+    data = FitData(demoset, kin, dtype, device)
     t_fk = time.perf_counter() - t0
-    rng = np.random.default_rng(cfg.seed)
     torch.manual_seed(cfg.seed)
-    notes: list[str] = []
+    fingerprint = demos_fingerprint(demoset) if on_restart is not None else ""
 
     learn_tool, learn_env = cfg.tool == "learn", cfg.env == "learn"
     fixed_tool = {"gripper": (0.0, 0.0, 0.0), "tip": None, "learn": None}[cfg.tool]
@@ -414,27 +266,30 @@ def _fit(demoset, kin, cfg, callback, dtype, device) -> FitResult:
                       "alignments": align, "mu": mu, "sigma_inv": sigma_inv})
         return on_iter
 
-    fitter = _Fitter(data, cfg, dtype, device, list(range(Z)))
-    histories, losses, iters, best = [], [], [], None
-    for r in range(cfg.restarts):
-        align = [random_alignment(n, T, rng, cfg.offsets) for n in data.lengths]
-        if fixed_tool is not None:
-            tool0 = np.asarray(fixed_tool, dtype=float)
-        else:
-            tool0 = np.zeros(3) if r == 0 else rng.normal(0.0, cfg.tool_init_std, 3)
-        w0 = fixed_env if fixed_env is not None else (np.full(Z, 1.0 / Z) if r == 0 else rng.dirichlet(np.ones(Z)))
+    fitter = EMFitter(data, cfg, dtype, device, list(range(Z)))
+    histories, losses, iters, notes, best, first = [], [], [], [], None, 0
+    if resume is not None:
+        histories, losses = list(resume.loss_history), list(resume.restart_losses)
+        iters, notes, first = list(resume.em_iterations), list(resume.notes), resume.restarts_done
+        best = _restore(resume, data, dtype, device)
+    starts = initial_guesses(cfg.seed, data.lengths, T, Z, cfg, fixed_tool, fixed_env)
+    for r, (align, tool0, w0) in enumerate(itertools.islice(starts, cfg.restarts)):
+        if r < first:  # finished before the checkpoint: its draws are skipped, not repeated
+            continue
         try:
             state, hist = fitter.em(torch.as_tensor(tool0, dtype=dtype, device=device),
                                     torch.as_tensor(w0, dtype=dtype, device=device), align,
                                     learn_tool, learn_env, emit("restart", r, names))
-        except (FloatingPointError, torch.linalg.LinAlgError) as e:
+        except EM_FAILURES as e:
             notes.append(f"restart {r} dropped: {e}")
             warnings.warn(notes[-1], RuntimeWarning)
             histories.append(()), losses.append(float("nan")), iters.append(0)
-            continue
-        histories.append(tuple(hist)), losses.append(hist[-1]), iters.append(len(hist))
-        if best is None or hist[-1] < losses[best[0]]:
-            best = (r, state)
+        else:
+            histories.append(tuple(hist)), losses.append(hist[-1]), iters.append(len(hist))
+            if best is None or hist[-1] < losses[best[0]]:
+                best = (r, state)
+        if on_restart is not None:
+            on_restart(_progress(cfg, fingerprint, histories, losses, iters, notes, best))
     if best is None:
         raise ValueError(f"every one of the {cfg.restarts} restarts failed: {'; '.join(notes)}")
     best_r, state = best
@@ -449,7 +304,7 @@ def _fit(demoset, kin, cfg, callback, dtype, device) -> FitResult:
         if not kept:
             kept = [int(w.abs().argmax())]
         if len(kept) < Z:
-            fitter = _Fitter(data, cfg, dtype, device, kept)
+            fitter = EMFitter(data, cfg, dtype, device, kept)
             wk = w[kept] / w[kept].sum()
             try:
                 state, hist = fitter.em(tool, wk, align, learn_tool, len(kept) > 1,
@@ -457,12 +312,15 @@ def _fit(demoset, kin, cfg, callback, dtype, device) -> FitResult:
                 histories.append(tuple(hist)), iters.append(len(hist))
                 tool, w, mu, sigma_inv, log_trans, align = state
                 final_loss = hist[-1]
-            except (FloatingPointError, torch.linalg.LinAlgError) as e:
+            except EM_FAILURES as e:
                 raise ValueError(f"refit after pruning to {[names[i] for i in kept]} failed: {e}") from e
     elif fixed_env is not None:
         kept = [int(np.argmax(fixed_env))]
         w = w[kept]
-        fitter = _Fitter(data, cfg, dtype, device, kept)
+        fitter = EMFitter(data, cfg, dtype, device, kept)
+    finite = all(bool(torch.isfinite(x).all()) for x in (tool, w, mu, sigma_inv))
+    if not (math.isfinite(final_loss) and finite and bool((log_trans < math.inf).all())):  # -inf: forbidden
+        raise ValueError("the fit ended with non-finite values (NaN or inf) in the model; no model is returned")
 
     with torch.no_grad():
         _, A = data.features(tool, w, fitter.T_lm)
@@ -485,4 +343,5 @@ def _fit(demoset, kin, cfg, callback, dtype, device) -> FitResult:
                      kept_landmarks=kept_names, env_before_pruning=env_before, alignments=tuple(align),
                      virtual_det=tuple(float(x) for x in det), warnings=tuple(notes),
                      timings={"fk_s": t_fk, "restarts_s": t_restarts,
-                              "refit_s": total - t_fk - t_restarts, "total_s": total})
+                              "refit_s": total - t_fk - t_restarts, "total_s": total},
+                     resumed_restarts=first)

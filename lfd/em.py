@@ -1,0 +1,231 @@
+"""The EM machinery of ``lfd.learn.fit``: the data as tensors, M-step (LBFGS), E-step (DTW).
+
+``FitData`` holds everything that does not depend on zeta or eta (forward kinematics computed
+once); ``EMFitter`` runs EM from one initial alignment (one restart of ``fit``). The objective
+and the profiled M-step are described in ``lfd.learn``'s docstring; shapes: ``N`` observations
+of ``M`` demonstrations, ``T`` time steps, ``F = d + 3`` features, ``Z`` landmarks.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from lfd.dtw import dtw_align
+from lfd.model import aligned_nll_tensor, landmarks_inverse_tensor, step_nll_tensor
+from lfd.priors import estimate_log_trans, floor_prior, volume_prior
+
+__all__ = ["FitData", "EMFitter", "EM_FAILURES"]
+
+# what a restart that diverged raises (a non-finite loss, a covariance that is not positive definite)
+EM_FAILURES = (FloatingPointError, torch.linalg.LinAlgError)
+
+
+class FitData:
+    """The demonstrations as tensors, and everything that does not depend on zeta or eta."""
+
+    def __init__(self, demoset, kin, dtype, device):
+        self.M = len(demoset.demos)
+        self.lengths = [d.n_samples for d in demoset.demos]
+        self.N = sum(self.lengths)
+        q = np.concatenate([d.q for d in demoset.demos])
+        self.q = torch.as_tensor(q, dtype=dtype, device=device)  # (N, d)
+        self.demo = torch.repeat_interleave(torch.arange(self.M, device=device),
+                                            torch.tensor(self.lengths, device=device))  # (N,)
+        self.sample = torch.cat([torch.arange(n, device=device) for n in self.lengths])  # (N,)
+        with torch.no_grad():
+            self.T_world_ee = kin.to(dtype, device).fk(self.q)  # (N, 4, 4), computed once
+        lm = np.stack([d.landmarks for d in demoset.demos])  # (M, Z, 4, 4)
+        self.T_lm_world = landmarks_inverse_tensor(torch.as_tensor(lm, dtype=dtype, device=device))
+        self.counts = torch.tensor(self.lengths, dtype=dtype, device=device)
+
+    def features(self, tool, w, T_lm_world=None):
+        """``f (N, F)`` and the per-demo linear parts ``A (M, 3, 3)``."""
+        K = torch.einsum("z,mzij->mij", w, self.T_lm_world if T_lm_world is None else T_lm_world)
+        p_world = self.T_world_ee[:, :3, :3] @ tool + self.T_world_ee[:, :3, 3]  # (N, 3)
+        Kn = K[self.demo]  # (N, 4, 4)
+        x = torch.einsum("nij,nj->ni", Kn[:, :3, :3], p_world) + Kn[:, :3, 3]
+        return torch.cat([self.q, x], dim=1), K[:, :3, :3]
+
+    def pad(self, per_obs):
+        """``(N, T)`` -> ``(M, S_max, T)`` (padding holds zeros)."""
+        out = per_obs.new_zeros(self.M, max(self.lengths), per_obs.shape[1])
+        out[self.demo, self.sample] = per_obs
+        return out
+
+
+class EMFitter:
+    def __init__(self, data: FitData, cfg, dtype, device, landmark_idx):
+        self.data, self.cfg, self.dtype, self.device = data, cfg, dtype, device
+        self.T, self.K = cfg.time_steps, len(cfg.offsets)
+        d = data.q.shape[1]
+        self.d, self.F = d, d + 3
+        self.T_lm = data.T_lm_world[:, landmark_idx]  # (M, Z', 4, 4)
+        self.Z = len(landmark_idx)
+        self.floor = torch.tensor([cfg.floor_joint] * d + [cfg.floor_task] * 3, dtype=dtype, device=device)
+        self.nu = float(cfg.floor_weight) if cfg.floor_weight is not None else data.N / self.T
+        self.s = float(cfg.logdet_scale)
+        mask = torch.ones(self.F, self.F, dtype=dtype, device=device)
+        if cfg.covariance == "block":
+            mask[d:, :d] = 0
+            mask[:d, d:] = 0
+        self.mask = mask
+        if self.Z > 1:  # orthonormal basis of {u : sum u = 0}
+            Q, _ = torch.linalg.qr(torch.cat([torch.ones(self.Z, 1, dtype=dtype, device=device),
+                                              torch.eye(self.Z, dtype=dtype, device=device)], 1))
+            self.B = Q[:, 1:self.Z]
+        else:
+            self.B = torch.zeros(1, 0, dtype=dtype, device=device)
+
+    # -- pieces of the objective
+    def zeta_terms(self, tool, w, A):
+        out = volume_prior(A, self.data.counts) if self.cfg.volume_prior else tool.new_zeros(())
+        if self.cfg.zeta_prior is not None:
+            out = out + self.cfg.zeta_prior(tool, w)
+        return out
+
+    def closed_form(self, f, t_idx):
+        """Per-step ``mu (T, F)``, ``Sigma (T, F, F)``, counts ``n (T,)`` (eta-optimum for this zeta).
+
+        Sums over the observations of each step are products with the one-hot ``E (T, N)``
+        (``index_add_`` on CPU is an order of magnitude slower, forward and backward)."""
+        E = self._onehot(t_idx)
+        n = E.sum(1)
+        mu = (E @ f) / n.clamp(min=1)[:, None]
+        c = f - mu[t_idx]  # (N, F)
+        S = (E[:, :, None] * c[None]).transpose(1, 2) @ c  # (T, F, F)
+        Psi = torch.diag(self.floor ** 2)
+        Sigma = (S + self.nu * Psi) / (self.s * n.clamp(min=1))[:, None, None] * self.mask
+        return mu, Sigma, n
+
+    def _onehot(self, t_idx):
+        if getattr(self, "_onehot_key", None) is not t_idx:
+            self._onehot_key = t_idx
+            self._onehot_val = torch.nn.functional.one_hot(t_idx, self.T).T.to(self.dtype)  # (T, N)
+        return self._onehot_val
+
+    def profiled(self, tool, w, t_idx):
+        f, A = self.data.features(tool, w, self.T_lm)
+        _, Sigma, n = self.closed_form(f, t_idx)
+        logdet = 2 * torch.log(torch.diagonal(torch.linalg.cholesky(Sigma), dim1=-2, dim2=-1)).sum(-1)
+        return (self.s * n * (logdet + self.F)).sum() + self.zeta_terms(tool, w, A)
+
+    def eta_from(self, tool, w, t_idx):
+        with torch.no_grad():
+            f, _ = self.data.features(tool, w, self.T_lm)
+            mu, Sigma, n = self.closed_form(f, t_idx)
+            empty = (n == 0).nonzero().flatten().tolist()
+            full = (n > 0).nonzero().flatten()
+            for t in empty:  # a step every demonstration skipped: copy the nearest step with data
+                src = full[(full - t).abs().argmin()]
+                mu[t], Sigma[t] = mu[src], Sigma[src]
+            L = torch.linalg.cholesky(Sigma)
+            eye = torch.eye(self.F, dtype=self.dtype, device=self.device).expand_as(L)
+            return mu, torch.linalg.solve_triangular(L, eye, upper=False)
+
+    def joint_loss(self, tool, w, mu, sigma_inv, t_idx):
+        f, A = self.data.features(tool, w, self.T_lm)
+        out = aligned_nll_tensor(f, t_idx, mu, sigma_inv, self.s).sum()
+        out = out + floor_prior(sigma_inv, self.floor, self.nu) + self.zeta_terms(tool, w, A)
+        if self.cfg.eta_prior is not None:
+            out = out + self.cfg.eta_prior(mu, sigma_inv)
+        return out
+
+    # -- steps
+    def _lbfgs(self, params, closure, max_iter):
+        opt = torch.optim.LBFGS(params, lr=1.0, max_iter=max_iter, history_size=self.cfg.lbfgs_history,
+                                tolerance_grad=self.cfg.lbfgs_tol_grad, tolerance_change=1e-12,
+                                line_search_fn="strong_wolfe")
+        opt.step(closure)
+
+    def m_step(self, tool, w, t_idx, learn_tool, learn_env):
+        N = self.data.N
+        tool_p = tool.clone().requires_grad_(learn_tool)
+        u = torch.zeros(self.B.shape[1], dtype=self.dtype, device=self.device, requires_grad=learn_env)
+        params = [p for p, on in ((tool_p, learn_tool), (u, learn_env and self.Z > 1)) if on]
+
+        def closure():
+            opt_zero(params)
+            loss = self.profiled(tool_p, w + self.B @ u, t_idx) / N
+            if loss.requires_grad:
+                loss.backward()
+            return loss
+
+        if params:
+            self._lbfgs(params, closure, self.cfg.lbfgs_max_iter)
+        tool, w = tool_p.detach(), (w + self.B @ u).detach()
+        w = w - (w.sum() - 1) / self.Z
+        mu, sigma_inv = self.eta_from(tool, w, t_idx)
+        if self.cfg.m_step == "joint" or self.cfg.eta_prior is not None:
+            tool, w, mu, sigma_inv = self.joint_polish(tool, w, mu, sigma_inv, t_idx, learn_tool, learn_env)
+        return tool, w, mu, sigma_inv
+
+    def joint_polish(self, tool, w, mu, sigma_inv, t_idx, learn_tool, learn_env):
+        """LBFGS over zeta and eta together (eta as mu, log-diagonal, strictly-lower part)."""
+        N = self.data.N
+        tool_p = tool.clone().requires_grad_(learn_tool)
+        u = torch.zeros(self.B.shape[1], dtype=self.dtype, device=self.device, requires_grad=learn_env)
+        mu_p = mu.clone().requires_grad_(True)
+        logd = torch.log(torch.diagonal(sigma_inv, dim1=-2, dim2=-1)).clone().requires_grad_(True)
+        low = torch.tril(sigma_inv, -1).clone().requires_grad_(True)
+        lmask = torch.tril(self.mask, -1)
+        params = [mu_p, logd, low] + [p for p, on in ((tool_p, learn_tool), (u, learn_env and self.Z > 1)) if on]
+
+        def build():
+            return low * lmask + torch.diag_embed(torch.exp(logd))
+
+        def closure():
+            opt_zero(params)
+            loss = self.joint_loss(tool_p, w + self.B @ u, mu_p, build(), t_idx) / N
+            loss.backward()
+            return loss
+
+        self._lbfgs(params, closure, self.cfg.joint_max_iter)
+        w = (w + self.B @ u).detach()
+        return tool_p.detach(), w - (w.sum() - 1) / self.Z, mu_p.detach(), build().detach()
+
+    def e_step(self, tool, w, mu, sigma_inv, log_trans):
+        with torch.no_grad():
+            f, _ = self.data.features(tool, w, self.T_lm)
+            cost = self.data.pad(step_nll_tensor(f, mu, sigma_inv, self.s))  # (M, S_max, T)
+            align, values = dtw_align(cost, self.data.lengths, -2.0 * log_trans, self.cfg.offsets)
+        return align, values
+
+    def total_loss(self, tool, w, mu, sigma_inv, values):
+        """Negative log posterior per observation given the DTW values of the current alignment."""
+        with torch.no_grad():
+            f, A = self.data.features(tool, w, self.T_lm)
+            out = values.sum() + floor_prior(sigma_inv, self.floor, self.nu) + self.zeta_terms(tool, w, A)
+            if self.cfg.eta_prior is not None:
+                out = out + self.cfg.eta_prior(mu, sigma_inv)
+        return float(out) / self.data.N
+
+    def em(self, tool, w, align, learn_tool, learn_env, on_iter=None):
+        """Alternate M and E steps from an initial alignment; returns the state and loss history."""
+        history, state = [], None
+        for it in range(self.cfg.max_em_iters):
+            t_idx = torch.as_tensor(np.concatenate(align), device=self.device)
+            log_trans = estimate_log_trans(align, self.T, self.cfg.offsets, self.cfg.trans_floor,
+                                           self.dtype, self.device)
+            tool, w, mu, sigma_inv = self.m_step(tool, w, t_idx, learn_tool, learn_env)
+            new_align, values = self.e_step(tool, w, mu, sigma_inv, log_trans)
+            loss = self.total_loss(tool, w, mu, sigma_inv, values)
+            if not math.isfinite(loss) or not all(torch.isfinite(x).all() for x in (tool, w, mu, sigma_inv)):
+                raise FloatingPointError(f"non-finite loss at EM iteration {it + 1}")
+            history.append(loss)
+            state = (tool, w, mu, sigma_inv, log_trans, new_align)
+            if on_iter is not None:
+                on_iter(it, loss, state)
+            same = all(np.array_equal(a, b) for a, b in zip(align, new_align))
+            align = new_align
+            if same or (len(history) > 1 and abs(history[-2] - history[-1]) < self.cfg.em_tol):
+                break
+        return state, history
+
+
+def opt_zero(params):
+    for p in params:
+        if p.grad is not None:
+            p.grad = None
