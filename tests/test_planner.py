@@ -330,3 +330,33 @@ def test_roadmap_growth_between_plans(toy):
     after = planner.plan(q0, 0)
     ref = reference_cost(rm, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2, q0, 0)
     assert before.ok and after.cost == pytest.approx(ref, rel=1e-9)  # the floor may move: no order
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_problems_match_reference(seed):
+    """Random roadmaps, horizons, forbidden transitions, start steps and goals; both the plain
+    time bound (0 sweeps) and the relaxed heuristic give the reference Dijkstra cost."""
+    rng = np.random.default_rng(100 + seed)
+    rm = Roadmap.build(lambda n: rng.uniform(-1, 1, (n, 2)), int(rng.integers(30, 90)), in_box,
+                       segment_hits_box)
+    T = int(rng.integers(3, 8))
+    lt = np.log(rng.dirichlet([1.0, 1.0, 1.0], size=T))
+    lt[rng.random((T, 3)) < 0.15] = -np.inf
+    means = arc_means(T, rng.uniform(-0.3, 0.3))
+
+    def free_point():
+        q = rng.uniform(-1, 1, 2)
+        return q if not in_box(q) else free_point()
+    q0, t0 = free_point(), int(rng.integers(0, T))
+    qg = free_point() if seed % 2 == 0 else None
+    ref = reference_cost(rm, gaussian_factory()(means), lt, DT, VMAX2, q0, t0, q_goal=qg,
+                         quad_dt=0.05)
+    for sweeps in (0, 3):
+        p = ClosedLoopPlanner(rm, gaussian_factory(), lt, DT, VMAX2, settings=PlannerSettings(
+            cost=CostSettings(heuristic_sweeps=sweeps, quad_dt=0.05)))
+        p.update_landmarks(means)
+        res = p.plan(q0, t0, qg)
+        if math.isinf(ref):
+            assert res.status == "no_path"
+        else:
+            assert res.ok and res.cost == pytest.approx(ref, rel=1e-9, abs=1e-9)
