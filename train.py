@@ -2,13 +2,22 @@
 
 Thin: parses arguments, loads (or generates) demonstrations, calls ``lfd.learn.fit``, writes
 ``model.pt``, ``config.json``, ``summary.json`` and TensorBoard logs into ``--out``.
+
+Interruptions: after every restart the fit's progress is checkpointed into ``--out``
+(``checkpoint.json`` + ``checkpoint_rNNN.pt``, see ``lfd.checkpoint``). Ctrl-C (SIGINT) or
+SIGTERM stops the run with one line naming the checkpoint and the command that resumes it,
+exit status 130 / 143; ``--resume`` carries on (same options and demonstrations, or it is
+refused) and ends with the model an uninterrupted run would have learned. Every file is
+written atomically, and never while a signal is being handled.
 """
 
 from __future__ import annotations
 
 import json
+import shlex
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +39,14 @@ def parse_args(argv=None):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
     p.add_argument("--covariance", default=None, choices=("full", "block"))
-    return p.parse_args(argv)
+    p.add_argument("--resume", action="store_true",
+                   help="continue from the checkpoint in --out (same options and demonstrations)")
+    args = p.parse_args(argv)
+    if args.restarts is not None and args.restarts < 1:
+        raise UsageError(f"--restarts must be at least 1, got {args.restarts}")
+    if args.time_steps is not None and args.time_steps < 2:
+        raise UsageError(f"--time-steps must be at least 2, got {args.time_steps}")
+    return args
 
 
 def ensure_demos(task: str, demos_dir: Path, seed: int) -> None:
@@ -88,24 +104,65 @@ class Logger:
             img = np.zeros((1, m.time_steps, len(a)), dtype=np.float32)  # (C, H = step, W = sample)
             img[0, a, np.arange(len(a))] = 1.0
             w.add_image(f"alignment/demo_{i:02d}", img, 0)
-        w.close()
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
+
+
+def resume_command(argv) -> str:
+    """The command line that resumes this run."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if "--resume" not in args:
+        args.append("--resume")
+    return shlex.join([sys.executable, sys.argv[0] or "train.py", *map(str, args)])
 
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    from lfd.checkpoint import Interrupted, InterruptGuard, checkpoint_path
+
+    out = writable_dir(args.out or ROOT / "runs" / args.task)
+    progress = {"done": None, "restarts": args.restarts}
+    with InterruptGuard() as guard:
+        try:
+            return _train(args, out, guard, progress)
+        except Interrupted as e:
+            rec = checkpoint_path(out)
+            if rec.is_file() and progress["done"] is not None:
+                print(f"train.py: interrupted by {e.name}; checkpoint {rec} holds {progress['done']} of "
+                      f"{progress['restarts']} restarts; resume with: {resume_command(argv)}",
+                      file=sys.stderr, flush=True)
+            else:
+                print(f"train.py: interrupted by {e.name} before the first restart finished; no checkpoint "
+                      f"in {out}, nothing to resume", file=sys.stderr, flush=True)
+            return e.exit_status
+
+
+def _train(args, out: Path, guard, progress: dict) -> int:
     import torch
 
+    from lfd.checkpoint import (CheckpointError, atomic_torch_save, atomic_write_text, checkpoint_path,
+                                config_record, demos_fingerprint, load_checkpoint, remove_checkpoint,
+                                save_checkpoint)
     from lfd.demos import load_demos
     from lfd.kinematics import KinematicModel
     from lfd.learn import FitConfig, fit
 
+    resumed = None
+    if args.resume:
+        try:
+            resumed = load_checkpoint(out)
+        except CheckpointError as e:
+            raise UsageError(f"--resume: {e}") from e
+        progress["done"] = resumed.restarts_done
     demos_dir = args.demos or ROOT / "runs" / "demos" / args.task
-    out = writable_dir(args.out or ROOT / "runs" / args.task)
     if args.demos is None:
         ensure_demos(args.task, demos_dir, args.seed)
     if args.device == "cuda" and not torch.cuda.is_available():
         raise UsageError("--device cuda: torch.cuda.is_available() is False on this machine")
-    ds = load_demos(demos_dir)
+    ds = load_demos(demos_dir, time_steps=args.time_steps)
     if ds.task is not None and ds.task.name != args.task:
         raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")
     kw = {"tool": args.tool, "env": args.env, "seed": args.seed, "device": args.device}
@@ -117,21 +174,47 @@ def main(argv=None) -> int:
         cfg = FitConfig(**kw)
     except ValueError as e:
         raise UsageError(str(e)) from e
+    progress["restarts"] = cfg.restarts
+    if resumed is not None:
+        why = resumed.mismatch(config_record(cfg), demos_fingerprint(ds))
+        if why:
+            raise UsageError(f"--resume: {checkpoint_path(out)} was {why}; resume with the options and "
+                             f"demonstrations it was made with, or drop --resume to start over")
+        print(f"resuming from {checkpoint_path(out)}: {resumed.restarts_done} of {cfg.restarts} restarts done",
+              flush=True)
+    else:
+        with guard.critical():
+            remove_checkpoint(out)  # an older run's; this run's first restart writes a new one
     kin = KinematicModel.from_spec(ds.robot)
     print(f"{len(ds.demos)} demonstrations, {ds.n_observations} observations, landmarks "
           f"{list(ds.landmark_names)}; T={cfg.time_steps}, {cfg.restarts} restarts", flush=True)
     log = Logger(out, ds.joint_names)
+    shown = [len(resumed.notes) if resumed else 0]
+
+    def on_restart(p) -> None:
+        with guard.critical():
+            save_checkpoint(out, p)
+            progress["done"] = p.restarts_done
+        for note in p.notes[shown[0]:]:  # progress on stdout; stderr keeps one line for errors
+            print(f"warning: {note}", flush=True)
+        shown[0] = len(p.notes)
+
     try:
-        result = fit(ds, kin, cfg, callback=log)
-    except ValueError as e:
+        with warnings.catch_warnings():  # the fit's RuntimeWarnings are shown by on_restart / at the end
+            warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"lfd\.learn")
+            result = fit(ds, kin, cfg, callback=log, on_restart=on_restart, resume=resumed)
+        log.final(result)
+    except ValueError as e:  # every restart failed, the refit failed, a non-finite model
         raise UsageError(str(e)) from e
-    log.final(result)
+    finally:
+        log.close()
     m = result.model
-    m.save(out)
     summary = {"learning_time_s": result.timings["total_s"], "n_demos": len(ds.demos),
                "n_observations": ds.n_observations, "time_steps": cfg.time_steps, "restarts": cfg.restarts,
-               "covariance": cfg.covariance, "final_loss": result.final_loss,
-               "restart_losses": list(result.restart_losses), "em_iterations": list(result.em_iterations),
+               "covariance": cfg.covariance, "seed": cfg.seed, "final_loss": result.final_loss,
+               "restart_losses": [x if np.isfinite(x) else None for x in result.restart_losses],
+               "em_iterations": list(result.em_iterations), "best_restart": result.best_restart,
+               "resumed_restarts": result.resumed_restarts,
                "tool_point": m.tool.cpu().tolist(),
                "env_weights": {n: float(x) for n, x in zip(m.landmark_names, m.env.cpu().tolist())},
                "env_weights_before_pruning": result.env_before_pruning,
@@ -143,13 +226,15 @@ def main(argv=None) -> int:
             summary["tool_point_error_m"] = float(np.linalg.norm(np.asarray(gt["tool_point"]) - m.tool.cpu().numpy()))
         if "bowl_landmark" in gt:
             summary["bowl_weight"] = result.env_before_pruning.get(gt["bowl_landmark"])
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    with guard.critical():  # the model's files, each atomic, and never split by a signal
+        atomic_torch_save(m.state_dict(), out / "model.pt")
+        atomic_write_text(out / "config.json", json.dumps(m.config_dict(), indent=2) + "\n")
+        atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     print(f"learned in {summary['learning_time_s']:.1f}s: tool {np.round(m.tool.cpu().numpy(), 4).tolist()}, "
           f"env {summary['env_weights']}; wrote {out}", flush=True)
-    for w in result.warnings:
+    for w in result.warnings[shown[0]:]:
         print(f"warning: {w}", file=sys.stderr)
     return 0
-
 
 if __name__ == "__main__":
     run_main(main, prog="train.py")

@@ -36,7 +36,8 @@ import torch
 
 __all__ = ["FitProgress", "CheckpointError", "Interrupted", "InterruptGuard", "atomic_write_bytes",
            "atomic_write_text", "atomic_torch_save", "save_checkpoint", "load_checkpoint",
-           "checkpoint_path", "config_record", "demos_fingerprint", "temp_files", "STATE_TENSORS"]
+           "checkpoint_path", "remove_checkpoint", "config_record", "demos_fingerprint", "temp_files",
+           "STATE_TENSORS"]
 
 FORMAT = "lfd-fit-checkpoint/1"
 RECORD = "checkpoint.json"
@@ -280,3 +281,11 @@ class InterruptGuard:
             if self._depth == 0 and self._pending is not None:
                 signum, self._pending = self._pending, None
                 raise Interrupted(signum)
+
+
+def remove_checkpoint(folder: str | Path) -> None:
+    """Remove ``folder``'s checkpoint (the record first, so no half of one is ever taken for it)."""
+    folder = Path(folder)
+    (folder / RECORD).unlink(missing_ok=True)
+    for old in folder.glob("checkpoint_r*.pt"):
+        old.unlink(missing_ok=True)
