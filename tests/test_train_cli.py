@@ -1,0 +1,270 @@
+"""train.py and plan.py on bad input: one line on stderr, its own message, exit status 2.
+
+Every case runs the real script as a subprocess (``sys.executable``); the subprocesses of all
+cases are started together from one module fixture (a few at a time) since each spends most
+of its ~2-3 s importing torch. Numerical trouble (restarts whose loss becomes NaN) is tested
+in-process by poisoning the EM loss.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lfd.checkpoint import FitProgress, save_checkpoint
+from lfd.demos import Demonstration, DemoSet, save_demonstration, save_demos
+from lfd.robots import BAXTER_LEFT
+from lfd.tasks import POWDER
+
+ROOT = Path(__file__).resolve().parent.parent
+NAMES = ("bowl", "marker_1", "marker_2")
+RUN = ["--restarts", "1", "--time-steps", "4"]  # where a run could start, it would be short
+
+
+def _demoset(n=2, samples=30, seed=0) -> DemoSet:
+    """Two small, valid demonstrations (random joints near a nominal pose, 3 landmarks)."""
+    rng = np.random.default_rng(seed)
+    demos = []
+    for i in range(n):
+        poses = np.tile(np.eye(4), (len(NAMES), 1, 1))
+        poses[:, :3, 3] = rng.uniform(-0.5, 0.5, (len(NAMES), 3))
+        q = np.array([0.0, -0.5, 0.0, 1.2, 0.0, 0.5, 0.0]) + 0.1 * rng.standard_normal((samples + i, 7))
+        demos.append(Demonstration(q=q, dt=0.1, landmarks=poses, name=f"demo_{i:03d}"))
+    return DemoSet(demos=tuple(demos), joint_names=BAXTER_LEFT.joint_names, landmark_names=NAMES,
+                   robot=BAXTER_LEFT, task=POWDER)
+
+
+def _rewrite(path: Path, **changes):
+    """Rewrite one npz with keys changed (None deletes the key)."""
+    with np.load(path, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    for k, v in changes.items():
+        if v is None:
+            data.pop(k, None)
+        else:
+            data[k] = v
+    path.unlink()
+    np.savez(path, **data)
+
+
+def _not_rigid():
+    T = np.tile(np.eye(4), (3, 1, 1))
+    T[1, :3, :3] *= 1.5
+    return T
+
+
+def _demos(**changes):
+    """A setup: a demonstration folder with ``demo_001.npz`` changed; returns train.py's arguments."""
+    def setup(d: Path, good: Path):
+        shutil.copytree(good, d / "demos")
+        if changes:
+            _rewrite(d / "demos" / "demo_001.npz", **changes)
+        return ["train.py", "--task", "powder", "--demos", str(d / "demos"), "--out", str(d / "out"), *RUN]
+    return setup
+
+
+def _unknown_joint(d, good):
+    ds = _demoset()
+    bad = [*BAXTER_LEFT.joint_names[:-1], "left_w9"]
+    (d / "demos").mkdir()
+    for i, demo in enumerate(ds.demos):
+        save_demonstration(d / "demos" / f"d{i}.npz", demo, bad, NAMES, BAXTER_LEFT)
+    return ["train.py", "--task", "powder", "--demos", str(d / "demos"), "--out", str(d / "out"), *RUN]
+
+
+def _not_a_zip(d, good):
+    shutil.copytree(good, d / "demos")
+    (d / "demos" / "demo_001.npz").write_bytes(b"this is not a zip file")
+    return ["train.py", "--task", "powder", "--demos", str(d / "demos"), "--out", str(d / "out"), *RUN]
+
+
+def _empty(d, good):
+    (d / "demos").mkdir()
+    return ["train.py", "--task", "powder", "--demos", str(d / "demos"), "--out", str(d / "out"), *RUN]
+
+
+def _bad_task_json(d, good):
+    shutil.copytree(good, d / "demos")
+    (d / "demos" / "task.json").write_text("{not json")
+    return ["train.py", "--task", "powder", "--demos", str(d / "demos"), "--out", str(d / "out"), *RUN]
+
+
+def _train(*extra, out=None):
+    """A setup: valid demonstrations, train.py with ``extra`` arguments."""
+    def setup(d: Path, good: Path):
+        o = out(d) if out else d / "out"
+        return ["train.py", "--task", "powder", "--demos", str(good), "--out", str(o), *RUN, *extra]
+    return setup
+
+
+def _out_is_file(d):
+    (d / "f").write_text("x")
+    return d / "f"
+
+
+def _out_under_file(d):
+    (d / "f").write_text("x")
+    return d / "f" / "sub"
+
+
+def _damaged_checkpoint(d, good):
+    save_checkpoint(d, FitProgress(config={}, fingerprint="x", restart_losses=(float("nan"),),
+                                   loss_history=((),), em_iterations=(0,), notes=("restart 0 dropped",)))
+    (d / "checkpoint_r001.pt").write_bytes(b"garbage")
+    return ["train.py", "--task", "powder", "--demos", str(good), "--out", str(d), *RUN, "--resume"]
+
+
+def _plan(*args, model=None):
+    def setup(d: Path, good: Path):
+        extra = ["--model", str(model(d))] if model else []
+        return ["plan.py", *extra, *args]
+    return setup
+
+
+def _incomplete_model(d):
+    (d / "m").mkdir()
+    (d / "m" / "config.json").write_text(json.dumps({"format": "lfd-task-model/1", "task": {"name": "powder"}}))
+    return d / "m"
+
+
+# (id, setup(tmp_dir, good_demos_dir) -> argv, distinctive fragment of the one stderr line)
+CASES = [
+    # broken demonstration files, through train.py --demos
+    ("missing-key", _demos(q=None), r"missing key(s) ['q']"),
+    ("nan", _demos(q=np.full((30, 7), np.nan)), "'q' holds NaN"),
+    ("wrong-shape", _demos(q=np.zeros((30, 6))), "'q' has 6 columns"),
+    ("too-short", _demos(q=np.zeros((3, 7))), "only 3 samples, fewer than the 4 time steps"),
+    ("out-of-limits", _demos(q=np.full((30, 7), 2.9)), "outside its limits"),
+    ("not-rigid", _demos(landmark_poses=_not_rigid()), "'marker_1' pose is not a rigid transform"),
+    ("dt-zero", _demos(dt=np.float64(0.0)), "'dt' (sampling interval) must be positive"),
+    ("landmark-names", _demos(landmark_names=np.array(["bowl", "marker_1", "vase"])),
+     "landmark_names ['bowl', 'marker_1', 'vase'] (Z=3) differ"),
+    ("pickled-object-array", _demos(landmark_names=np.array(["bowl", 1, None], dtype=object)),
+     "cannot read without pickle"),
+    ("unknown-joint", _unknown_joint, "unknown joint name(s) ['left_w9']"),
+    ("not-a-zip", _not_a_zip, "not a readable .npz file"),
+    ("empty-folder", _empty, "no demonstration files (*.npz)"),
+    ("bad-task-json", _bad_task_json, "not a valid task definition"),
+    ("no-such-folder", lambda d, g: ["train.py", "--task", "powder", "--demos", str(d / "absent"), "--out",
+                                     str(d / "out"), *RUN], "no such demonstration folder"),
+    # arguments of train.py
+    ("unknown-task", lambda d, g: ["train.py", "--task", "stir"], "argument --task: invalid choice: 'stir'"),
+    ("bad-tool", _train("--tool", "spoon"), "argument --tool: invalid choice: 'spoon'"),
+    ("bad-covariance", _train("--covariance", "diag"), "argument --covariance: invalid choice: 'diag'"),
+    ("restarts-0", _train("--restarts", "0"), "--restarts must be at least 1, got 0"),
+    ("time-steps-1", _train("--time-steps", "1"), "--time-steps must be at least 2, got 1"),
+    ("out-is-file", _train(out=_out_is_file), "cannot create this folder (File exists)"),
+    ("out-under-a-file", _train(out=_out_under_file), "cannot create this folder (Not a directory)"),
+    ("device-cuda", _train("--device", "cuda"), "--device cuda: torch.cuda.is_available() is False"),
+    ("resume-no-checkpoint", _train("--resume"), "--resume: ", ),
+    ("resume-damaged-checkpoint", _damaged_checkpoint, "damaged (sha256 differs"),
+    # plan.py
+    ("plan-model-missing", _plan(model=lambda d: d / "absent"), "no config.json (train one with train.py)"),
+    ("plan-model-incomplete", _plan(model=_incomplete_model), "not an lfd task model (missing model.pt)"),
+    ("plan-evaluate-no-task", _plan("--evaluate"), "--evaluate needs --task"),
+    ("plan-roadmap-size", _plan("--roadmap-size", "5", model=lambda d: d), "--roadmap-size must be at least 10"),
+]
+FRAGMENT_EXTRA = {"resume-no-checkpoint": "no checkpoint to resume from"}
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    """Run every case (3 subprocesses at a time); ``{id: CompletedProcess}``."""
+    good = tmp_path_factory.mktemp("good")
+    save_demos(good, _demoset())
+    argvs = {}
+    for cid, setup, _ in CASES:
+        argvs[cid] = setup(tmp_path_factory.mktemp(cid), good)
+
+    def run(argv):
+        return subprocess.run([sys.executable, *argv], capture_output=True, text=True, cwd=ROOT, timeout=180)
+
+    with ThreadPoolExecutor(max_workers=3) as pool:
+        done = dict(zip(argvs, pool.map(run, argvs.values())))
+    return done
+
+
+def test_cases_are_distinct():
+    assert len(CASES) >= 20
+    assert len({c[0] for c in CASES}) == len({c[2] for c in CASES}) == len(CASES)
+
+
+@pytest.mark.parametrize("cid,fragment", [(c[0], c[2]) for c in CASES], ids=[c[0] for c in CASES])
+def test_bad_input_one_line_exit_2(results, cid, fragment):
+    r = results[cid]
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr
+    assert len(lines) == 1, r.stderr
+    assert lines[0].split(":")[0] in ("train.py", "plan.py")
+    assert ": error: " in lines[0]
+    assert fragment in lines[0], lines[0]
+    assert FRAGMENT_EXTRA.get(cid, "") in lines[0]
+
+
+# ----------------------------------------------------------------------------- numerical trouble
+@pytest.fixture(scope="module")
+def synth_dir(tmp_path_factory):
+    from lfd.kinematics import KinematicModel
+    from lfd.synthetic import make_synthetic
+    ds, _ = make_synthetic(KinematicModel.from_spec(), n_demos=3, time_steps=5, Z=2, seed=1, task=POWDER,
+                           samples_per_step=(3, 4))
+    d = tmp_path_factory.mktemp("synth")
+    save_demos(d, ds)
+    return d
+
+
+def _poison(monkeypatch, first_calls: float):
+    """Make ``EMFitter.total_loss`` NaN for its first ``first_calls`` calls."""
+    from lfd.em import EMFitter
+    original, calls = EMFitter.total_loss, {"n": 0}
+
+    def total_loss(self, *a):
+        calls["n"] += 1
+        return math.nan if calls["n"] <= first_calls else original(self, *a)
+
+    monkeypatch.setattr(EMFitter, "total_loss", total_loss)
+
+
+def _train_main(argv):
+    import train
+    from lfd.cli import run_main
+    with pytest.raises(SystemExit) as info:
+        run_main(train.main, argv, prog="train.py")
+    return info.value.code
+
+
+def test_nan_restart_is_dropped_with_a_warning(synth_dir, tmp_path, monkeypatch, capsys):
+    _poison(monkeypatch, first_calls=1)  # restart 0 turns NaN at its first EM iteration
+    out = tmp_path / "out"
+    code = _train_main(["--task", "powder", "--demos", str(synth_dir), "--out", str(out),
+                        "--restarts", "2", "--time-steps", "5"])
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["restart_losses"][0] is None and math.isfinite(summary["restart_losses"][1])
+    assert summary["best_restart"] == 1 and math.isfinite(summary["final_loss"])
+    assert any("restart 0 dropped: non-finite loss" in w for w in summary["warnings"])
+    assert "warning: restart 0 dropped" in capsys.readouterr().out
+    import torch
+    state = torch.load(out / "model.pt", weights_only=True)
+    assert all(bool(torch.isfinite(v).all()) for k, v in state.items() if k != "log_trans")
+    assert not bool(torch.isnan(state["log_trans"]).any())
+
+
+def test_all_restarts_failing_stops_without_a_model(synth_dir, tmp_path, monkeypatch, capsys):
+    _poison(monkeypatch, first_calls=math.inf)
+    out = tmp_path / "out"
+    code = _train_main(["--task", "powder", "--demos", str(synth_dir), "--out", str(out),
+                        "--restarts", "2", "--time-steps", "5"])
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("train.py: error: every one of the 2 restarts failed")
+    assert not any((out / f).exists() for f in ("model.pt", "config.json", "summary.json"))
