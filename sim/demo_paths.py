@@ -1,0 +1,170 @@
+"""Task-point paths of the kinesthetic demonstrator (pure numpy; no PyBullet, no IK).
+
+A demonstration is a sequence of keyframes of the *tool frame*: the gripper frame's orientation
+with its origin moved to the hidden task point. Each keyframe holds the task point's world
+position and three angles:
+
+* ``yaw``: the facing direction (the tool's pointing axis, gripper z, projected on the table);
+* ``pitch``: rotation about gripper x that tips the tool's far end down (pouring);
+* ``roll``: rotation about gripper z, the tool's long axis (turning the spoon over).
+
+``R_world_tool = R_level(yaw) @ R_x(pitch) @ R_z(roll)``, where ``R_level`` has gripper z
+horizontal along ``yaw`` and gripper y (the tool's "up", see ``sim.layout``) equal to world +z.
+
+Keyframes near the bowl are placed relative to the bowl (world-aligned, at the bowl's base
+frame: the centre of its bottom); the start and the end are relative to the source container.
+A demonstration's timing maps time to a phase ``u`` (keyframe ``k`` at ``u = k``) through a
+monotone PCHIP with per-segment random durations and pauses; positions and angles are PCHIP
+functions of ``u``. All randomness comes from the ``numpy.random.Generator`` passed in.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+
+from sim import layout as L
+
+__all__ = ["TASK_POINTS", "SHOULDER_XY", "DemoPath", "rotation_level", "tool_rotation", "draw_path",
+           "bowl_frame_path"]
+
+# Default hidden task points, metres in the gripper frame (see sim.layout for the tools):
+# powder -- the centre of the scoop just above its floor, on the spoon's long axis, i.e. the
+# point the dumping roll turns about; pour -- a point just below the spout lip.
+TASK_POINTS = {"powder": (0.0, 0.01, 0.17), "pour": (0.0, 0.045, 0.205)}
+SHOULDER_XY = (0.064, 0.259)  # left_upper_shoulder above the base, for the facing direction
+KEYS = ("x", "y", "z", "yaw", "pitch", "roll")
+
+
+def rotation_level(yaw: float) -> np.ndarray:
+    """``R_world_tool`` of a level tool pointing along ``yaw``: columns x, y (= world up), z."""
+    z = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    y = np.array([0.0, 0.0, 1.0])
+    return np.stack([np.cross(y, z), y, z], axis=1)
+
+
+def tool_rotation(yaw, pitch, roll) -> np.ndarray:
+    """``(S,) x3 -> (S, 3, 3)``: ``R_level(yaw) @ R_x(pitch) @ R_z(roll)``."""
+    yaw, pitch, roll = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (yaw, pitch, roll))
+    out = np.empty((len(yaw), 3, 3))
+    for i, (a, b, c) in enumerate(zip(yaw, pitch, roll)):
+        cb, sb, cc, sc = np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+        Rx = np.array([[1, 0, 0], [0, cb, -sb], [0, sb, cb]])
+        Rz = np.array([[cc, -sc, 0], [sc, cc, 0], [0, 0, 1]])
+        out[i] = rotation_level(a) @ Rx @ Rz
+    return out
+
+
+@dataclass(frozen=True)
+class DemoPath:
+    """A sampled demonstration path.
+
+    Attributes
+    ----------
+    t : (S,) sample times, s (``t[i] = i * dt``).
+    T_world_tool : (S, 4, 4) target poses of the tool frame (origin at the task point).
+    u : (S,) phase (keyframe index, fractional).
+    keyframes : (K, 6) the keyframes (x, y, z, yaw, pitch, roll).
+    bowl_xy : (2,) bowl position.
+    """
+
+    t: np.ndarray
+    T_world_tool: np.ndarray
+    u: np.ndarray
+    keyframes: np.ndarray
+    bowl_xy: np.ndarray
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1])
+
+
+def _facing(bowl_xy) -> float:
+    return float(np.arctan2(bowl_xy[1] - SHOULDER_XY[1], bowl_xy[0] - SHOULDER_XY[0]))
+
+
+def _keyframes(task: str, bowl_xy, start: np.ndarray, rng) -> tuple[np.ndarray, list]:
+    """Keyframes (K, 6) and per-segment (nominal duration, pause after the keyframe) lists."""
+    bx, by = bowl_xy
+    top = L.TABLE_TOP_Z
+    d = np.array([bx - SHOULDER_XY[0], by - SHOULDER_XY[1]])
+    d /= np.linalg.norm(d)
+    yaw = _facing(bowl_xy) + np.deg2rad(rng.uniform(-10, 10))  # facing differs by some degrees
+    tilt = np.deg2rad(rng.uniform(-8, 8))                      # and so does the tilt
+    x0, y0, z0, yaw0 = start
+    lift = start[:3] + [rng.normal(0, 0.01), rng.normal(0, 0.01), rng.uniform(0.03, 0.06)]
+    above = np.array([bx, by, top + rng.uniform(0.17, 0.21)]) + np.r_[rng.normal(0, 0.02, 2), 0]
+    mid = 0.5 * (lift + above) + [0, 0, rng.uniform(0.0, 0.03)]
+    side = np.array([-(above - lift)[1], (above - lift)[0], 0.0])
+    mid += side / max(np.linalg.norm(side), 1e-9) * rng.normal(0, 0.03)  # approach deviates a few cm
+    if task == "powder":
+        work = np.array([bx, by, top + L.BOWL_HEIGHT + rng.uniform(0.04, 0.07)]) + np.r_[rng.normal(0, 0.012, 2), 0]
+        turned = dict(roll=np.deg2rad(120 + rng.uniform(-10, 10)), pitch=tilt)
+        hold, turn_t = rng.uniform(0.4, 0.9), 2.0
+    else:
+        work = np.array([bx, by, top + L.BOWL_HEIGHT + rng.uniform(0.05, 0.07)])
+        work[:2] -= d * rng.uniform(0.02, 0.04) + rng.normal(0, 0.008, 2)  # spout over the near half
+        turned = dict(roll=0.0, pitch=np.deg2rad(100 + rng.uniform(-6, 6)))
+        hold, turn_t = rng.uniform(1.2, 2.0), 2.4
+    end = start[:3] + np.r_[rng.normal(0, 0.03, 2), rng.uniform(0.0, 0.05)]
+    yaw_mid = 0.5 * (yaw0 + yaw)
+    rows = [  # (x, y, z, yaw, pitch, roll), (nominal seconds of the segment into it, pause at it)
+        (start[:3], yaw0, 0.0, 0.0, 0.0, rng.uniform(0.0, 0.3)),
+        (lift, yaw0, 0.0, 0.0, 1.0, 0.0),
+        (mid, yaw_mid, 0.5 * tilt, 0.0, 1.4, 0.0),
+        (above, yaw, tilt, 0.0, 1.8, rng.uniform(0.0, 0.4)),
+        (work, yaw, tilt, 0.0, 1.0, rng.uniform(0.0, 0.3)),
+        (work, yaw, turned["pitch"], turned["roll"], turn_t, hold),
+        (work + [0, 0, 0.01], yaw, tilt, 0.0, turn_t, 0.0),
+        (above + [0, 0, 0.02], yaw, tilt, 0.0, 1.0, 0.0),
+        (end, yaw0, 0.0, 0.0, 2.4, rng.uniform(0.0, 0.3)),
+    ]
+    kf = np.array([[*r[0], r[1], r[2], r[3]] for r in rows], dtype=float)  # (K, 6)
+    timing = [(r[4], r[5]) for r in rows]
+    return kf, timing
+
+
+def draw_path(task: str, bowl_xy, start: np.ndarray, dt: float, rng: np.random.Generator,
+              duration_scale: float | None = None) -> DemoPath:
+    """A random human-like demonstration path.
+
+    Parameters
+    ----------
+    task : "powder" or "pour".
+    bowl_xy : (2,) bowl position on the table.
+    start : (4,) the task point's start position (x, y, z) and the start yaw.
+    dt : sampling interval, s.
+    rng : randomness.
+    duration_scale : total duration factor (default uniform in [0.7, 1.3], i.e. +-30 %).
+    """
+    if task not in TASK_POINTS:
+        raise ValueError(f"task must be 'powder' or 'pour', got {task!r}")
+    kf, timing = _keyframes(task, np.asarray(bowl_xy, dtype=float), np.asarray(start, dtype=float), rng)
+    scale = rng.uniform(0.7, 1.3) if duration_scale is None else float(duration_scale)
+    # time knots: non-uniform speed (each segment's duration varies on its own) and pauses
+    t_knots, u_knots, t = [0.0], [0.0], 0.0
+    if timing[0][1] > 0:
+        t += timing[0][1] * scale
+        t_knots.append(t), u_knots.append(0.0)
+    for k in range(1, len(kf)):
+        t += timing[k][0] * scale * float(np.exp(np.clip(rng.normal(0.0, 0.25), -0.35, 0.35)))
+        t_knots.append(t), u_knots.append(float(k))
+        if timing[k][1] > 0:
+            t += timing[k][1] * scale
+            t_knots.append(t), u_knots.append(float(k))
+    u_of_t = PchipInterpolator(np.array(t_knots), np.array(u_knots))
+    n = int(np.floor(t / dt)) + 1
+    ts = np.arange(n) * dt
+    u = np.clip(u_of_t(ts), 0, len(kf) - 1)
+    params = PchipInterpolator(np.arange(len(kf), dtype=float), kf, axis=0)(u)  # (S, 6)
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3, :3] = tool_rotation(params[:, 3], params[:, 4], params[:, 5])
+    T[:, :3, 3] = params[:, :3]
+    return DemoPath(t=ts, T_world_tool=T, u=u, keyframes=kf, bowl_xy=np.asarray(bowl_xy, dtype=float))
+
+
+def bowl_frame_path(p_world: np.ndarray, bowl_xy) -> np.ndarray:
+    """``(S, 3)`` world positions -> positions relative to the bowl's base frame (world-aligned)."""
+    return np.asarray(p_world) - np.array([bowl_xy[0], bowl_xy[1], L.TABLE_TOP_Z])

@@ -1,0 +1,338 @@
+"""The kinesthetic demonstrator: synthetic human-like demonstrations of the two tasks (Sec. VI).
+
+Per demonstration: the bowl is placed uniformly at random in the 30-inch square of
+``sim.layout`` and 4 distractor landmarks at random (powder: markers up to 0.3 m above the
+table; pour: scissors, spoon, vase, paper towels lifted up to 10 inches); a hidden task point
+on the tool (``sim.demo_paths.TASK_POINTS`` or ``task_point``) follows a random path relative
+to the bowl (``sim.demo_paths.draw_path``); the arm follows it by IK (``lfd.ik``) seeded from
+the previous sample, with a per-demonstration null-space posture. A demonstration is kept
+only if every sample is within the joint limits, no joint exceeds its URDF velocity over one
+sampling interval, no configuration collides (self, table, containers, distractors), and its
+replay under physics (position control, particles in the tool) ends with >= 90 % of the
+particles in the bowl and no contact of the arm or tool with anything but particles; otherwise
+a new one is drawn. Bowl positions whose path the arm cannot follow are drawn again too, so the
+bowl is uniform over the part of the square where the task can be done.
+
+Command line: ``python -m sim.demos --task powder|pour [--n 11] [--seed S]
+[--task-point X Y Z] --out DIR``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pybullet as p
+import torch
+
+from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
+from lfd.demos import Demonstration, save_demonstration
+from lfd.ik import IKConfig, solve_ik
+from lfd.kinematics import KinematicModel
+from lfd.robots import BAXTER_LEFT
+from lfd.tasks import task_from_name
+from sim import layout as L
+from sim.demo_paths import TASK_POINTS, DemoPath, bowl_frame_path, draw_path
+
+__all__ = ["generate", "DemoAttempt", "track_path", "replay", "plot_demos", "main", "MIN_IN_BOWL"]
+
+MIN_IN_BOWL = 0.9
+MAX_ATTEMPTS_PER_DEMO = 40
+# Above this elbow flex Baxter's left_upper_forearm touches left_upper_elbow_visual (collision
+# meshes); the demonstrator's IK keeps below it.
+ELBOW_FLEX_MAX = 1.9
+PATH_IK = IKConfig(max_iters=40, min_iters=1, pos_tol=2e-4, rot_tol=2e-3, max_step=0.2)
+LIFT_MAX = 0.254  # 10 inches
+
+
+@dataclass(frozen=True)
+class DemoAttempt:
+    """One drawn demonstration: joint trajectory, its path, the scene and why it failed (or "")."""
+
+    q: np.ndarray                 # (S, 7)
+    path: DemoPath
+    placements: dict              # object name -> (x, y, z) base position
+    failure: str = ""
+    in_bowl: float = float("nan")
+
+
+def _start_pose(kin: KinematicModel, tool_point: np.ndarray) -> np.ndarray:
+    """The task point's position and the yaw at ``HOME_Q`` (tool level over the source): (4,)."""
+    T = kin.fk(torch.as_tensor(L.HOME_Q, dtype=kin.dtype)).numpy()
+    pos = T[:3, 3] + T[:3, :3] @ tool_point
+    return np.r_[pos, np.arctan2(T[1, 2], T[0, 2])]
+
+
+def track_path(kin: KinematicModel, path: DemoPath, tool_point: np.ndarray, q_rest: np.ndarray,
+               dt: float) -> tuple[np.ndarray | None, str]:
+    """Joint trajectory ``(S, 7)`` following ``path`` with continuity, or ``(None, reason)``.
+
+    The first sample starts from ``HOME_Q`` and settles towards ``q_rest`` in the null space;
+    each later sample is seeded with the previous solution (never re-seeded).
+    """
+    T = torch.as_tensor(path.T_world_tool, dtype=kin.dtype)
+    tp = torch.as_tensor(tool_point, dtype=kin.dtype)
+    rest = torch.as_tensor(q_rest, dtype=kin.dtype)
+    first = solve_ik(kin, T[0], torch.as_tensor(L.HOME_Q, dtype=kin.dtype), p_ee_tool=tp, q_rest=rest,
+                     config=IKConfig(max_iters=300, min_iters=150, nullspace_gain=0.1))
+    if not bool(first.success[0]):
+        return None, f"no IK at the start (error {float(first.pos_err[0]):.3f} m)"
+    cfg = IKConfig(**{**PATH_IK.__dict__, "nullspace_gain": min(0.3, 2.0 * dt)})
+    qs = [first.q[0]]
+    for i in range(1, len(T)):
+        r = solve_ik(kin, T[i], qs[-1], p_ee_tool=tp, q_rest=rest, config=cfg)
+        if not bool(r.success[0]):
+            return None, (f"IK lost the path at t={path.t[i]:.2f}s (error {float(r.pos_err[0]) * 100:.1f} cm, "
+                          f"{float(r.rot_err[0]):.3f} rad)")
+        qs.append(r.q[0])
+    return torch.stack(qs).numpy(), ""
+
+
+def _smooth_noise(rng, n: int, d: int, sigma: float, width: int) -> np.ndarray:
+    """Low-pass Gaussian noise ``(n, d)`` with standard deviation about ``sigma``."""
+    raw = rng.normal(0.0, 1.0, (n + 2 * width, d))
+    k = np.hanning(2 * width + 1)
+    k /= np.sqrt((k ** 2).sum())
+    out = np.stack([np.convolve(raw[:, j], k, mode="valid") for j in range(d)], axis=1)[:n]
+    return sigma * out
+
+
+def check_motion(kin: KinematicModel, q: np.ndarray, dt: float) -> str:
+    """"" when ``q (S, 7)`` is within the joint limits and under the velocity limits, else why not."""
+    lo, hi, vel = kin.lower.numpy(), kin.upper.numpy(), kin.velocity.numpy()
+    if np.any(q < lo) or np.any(q > hi):
+        j = int(np.argmax(((q < lo) | (q > hi)).any(axis=0)))
+        return f"joint {kin.joint_names[j]} outside its limits"
+    step = np.abs(np.diff(q, axis=0)).max(axis=0)  # (7,)
+    if np.any(step > vel * dt):
+        j = int(np.argmax(step / (vel * dt)))
+        return f"joint {kin.joint_names[j]} too fast ({step[j] / dt:.2f} > {vel[j]:.2f} rad/s)"
+    return ""
+
+
+def _place_scene(world, task: str, bowl_xy, rng) -> dict:
+    """Place the bowl and draw the 4 distractors; returns name -> base position."""
+    from sim.world import LANDMARKS
+    c, h = np.asarray(L.SQUARE_CENTER_XY), L.SQUARE_HALF
+    placements = {"bowl": (float(bowl_xy[0]), float(bowl_xy[1]), L.TABLE_TOP_Z)}
+    for name in LANDMARKS[task][1:]:
+        xy = c + rng.uniform(-h, h, 2)
+        lift = rng.uniform(0.0, 0.3) if task == "powder" else rng.uniform(0.0, LIFT_MAX)
+        placements[name] = (float(xy[0]), float(xy[1]), L.TABLE_TOP_Z + lift)
+    for name, pos in placements.items():
+        world.place_object(name, pos)
+    return placements
+
+
+def _contacts(world, particle_ids: set) -> list[str]:
+    names = []
+    for cp in p.getContactPoints(bodyA=world.robot, physicsClientId=world.client):
+        other = cp[2]
+        if other in (world.robot, world.floor) or other in particle_ids:  # the pedestal stands on the floor
+            continue
+        names.append(next((n for n, b in world.objects.items() if b == other),
+                          "table" if other == world.table else f"body {other}"))
+    return names
+
+
+def replay(world, q: np.ndarray, dt: float, settle: float = 0.3, hold: float = 0.6) -> tuple[float, list[str]]:
+    """Replay ``q (S, 7)`` under physics with fresh particles in the tool.
+
+    The arm is teleported to ``q[0]``, particles are spawned and settle for ``settle`` seconds,
+    then position targets interpolated along the trajectory are commanded every physics step,
+    and the final configuration is held for ``hold`` seconds. Returns the fraction of particles
+    in the bowl and the names of the bodies the arm or tool touched (particles excluded).
+    """
+    world.set_q(q[0])
+    world.respawn_particles()
+    pid = set(world.particles.ids)
+    world.step(int(settle / L.SIM_DT))
+    n_steps = int(round((len(q) - 1) * dt / L.SIM_DT))
+    s = np.arange(1, n_steps + 1) * L.SIM_DT / dt  # (n,) fractional sample index
+    i0 = np.minimum(np.floor(s).astype(int), len(q) - 2)
+    f = (s - i0)[:, None]
+    targets = (1 - f) * q[i0] + f * q[i0 + 1]  # (n, 7)
+    hits = []
+    for k, qk in enumerate(targets):
+        world.command_q(qk)
+        world.step(1)
+        if k % 6 == 0:
+            hits += _contacts(world, pid)
+    world.command_q(q[-1])
+    world.step(int(hold / L.SIM_DT))
+    hits += _contacts(world, pid)
+    return world.fraction_in_bowl(), sorted(set(hits))
+
+
+def _draw_one(world, kin, kin_ik, fns, task, tool_point, dt, rng) -> DemoAttempt:
+    c, h = np.asarray(L.SQUARE_CENTER_XY), L.SQUARE_HALF
+    bowl_xy = c + rng.uniform(-h, h, 2)
+    path = draw_path(task, bowl_xy, _start_pose(kin, tool_point), dt, rng)
+    lo, hi = kin.lower.numpy(), kin.upper.numpy()
+    # redundancy resolved differently per demonstration; the elbow kept well below ELBOW_FLEX_MAX
+    q_rest = L.HOME_Q + rng.normal(0.0, 0.3, 7) + np.r_[0, 0, 0, -0.3, 0, 0, 0]
+    q_rest = np.clip(q_rest, lo + 0.1, np.minimum(hi, ELBOW_FLEX_MAX) - 0.3)
+    q, why = track_path(kin_ik, path, tool_point, q_rest, dt)
+    if q is None:
+        return DemoAttempt(np.zeros((0, 7)), path, {}, why)
+    q = q + _smooth_noise(rng, len(q), 7, 0.003, max(2, int(0.3 / dt)))  # small joint noise
+    q = np.clip(q, lo, hi)
+    why = check_motion(kin, q, dt)
+    if why:
+        return DemoAttempt(q, path, {}, why)
+    placements = _place_scene(world, task, bowl_xy, rng)
+    stride = max(1, int(round(0.05 / dt)))
+    Qc = np.concatenate([q[::stride], q[-1:]])
+    if np.any(fns["static"].batch_collision_fn(Qc)):
+        return DemoAttempt(q, path, placements, "collision with the robot or the table")
+    for _ in range(20):  # a person does not demonstrate through a vase: move the distractors
+        if not np.any(fns["all"].batch_collision_fn(Qc)):
+            break
+        placements = _place_scene(world, task, bowl_xy, rng)
+    else:
+        return DemoAttempt(q, path, placements, "distractors in the way")
+    in_bowl, hits = replay(world, q, dt)
+    if hits:
+        return DemoAttempt(q, path, placements, f"replay touched {', '.join(hits)}", in_bowl)
+    if in_bowl < MIN_IN_BOWL:
+        return DemoAttempt(q, path, placements, f"replay put {in_bowl:.0%} in the bowl", in_bowl)
+    return DemoAttempt(q, path, placements, "", in_bowl)
+
+
+def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, progress: bool = True,
+             keep_attempts: list | None = None) -> list[Path]:
+    """Generate ``n`` demonstrations of ``task`` into ``out_dir``; returns the ``.npz`` paths.
+
+    Writes ``demo_000.npz`` ... (``lfd.demos`` format), ``task.json`` and ``ground_truth.json``
+    (``tool_point``, ``bowl_landmark``, ``task``, plus the bowl positions and durations).
+    ``task_point``: (3,) metres in the gripper frame, default ``TASK_POINTS[task]``.
+    ``keep_attempts``: a list that receives the kept ``DemoAttempt`` objects (for tests/plots).
+
+    Raises
+    ------
+    ValueError
+        unknown task, ``n < 1``, a task point that is not 3 finite numbers.
+    RuntimeError
+        when a demonstration cannot be drawn in ``MAX_ATTEMPTS_PER_DEMO`` attempts.
+    """
+    from sim.collision import make_collision_fns
+    from sim.world import World
+
+    spec = task_from_name(task)
+    if int(n) < 1:
+        raise ValueError(f"n must be at least 1, got {n}")
+    tool_point = np.asarray(TASK_POINTS[task] if task_point is None else task_point, dtype=float)
+    if tool_point.shape != (3,) or not np.all(np.isfinite(tool_point)):
+        raise ValueError(f"task_point must be 3 finite numbers (metres, gripper frame), got {task_point!r}")
+    if np.linalg.norm(tool_point) > 0.5:
+        raise ValueError(f"task_point {tool_point.tolist()} is more than 0.5 m from the gripper")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    kin = KinematicModel.from_spec(BAXTER_LEFT, dtype=torch.float64)
+    kin_ik = kin.to()
+    kin_ik.upper = kin.upper.clone()
+    kin_ik.upper[3] = min(float(kin.upper[3]), ELBOW_FLEX_MAX)  # left_e1
+    torch.set_num_threads(1)
+    paths, bowls, durations, attempts_used = [], [], [], []
+    t_all = time.time()
+    with World(task) as world:
+        fns = {"static": make_collision_fns(world, obstacles=False),
+               "all": make_collision_fns(world, obstacles=True)}
+        for i in range(int(n)):
+            t0 = time.time()
+            for attempt in range(1, MAX_ATTEMPTS_PER_DEMO + 1):
+                a = _draw_one(world, kin, kin_ik, fns, task, tool_point, spec.dt, rng)
+                if not a.failure:
+                    break
+                if progress:
+                    print(f"  demo {i + 1}/{n}: attempt {attempt} rejected: {a.failure}", flush=True)
+            else:
+                raise RuntimeError(f"could not draw demonstration {i + 1} in {MAX_ATTEMPTS_PER_DEMO} attempts "
+                                   f"(last: {a.failure})")
+            names, poses = world.sensed_landmarks()
+            demo = Demonstration(q=a.q, dt=spec.dt, landmarks=poses, name=f"demo_{i:03d}")
+            paths.append(save_demonstration(out_dir / f"demo_{i:03d}.npz", demo, BAXTER_LEFT.joint_names,
+                                            names, BAXTER_LEFT))
+            bowls.append([float(v) for v in a.path.bowl_xy])
+            durations.append(a.path.duration)
+            attempts_used.append(attempt)
+            if keep_attempts is not None:
+                keep_attempts.append(a)
+            if progress:
+                print(f"demo {i + 1}/{n}: {a.path.duration:.1f} s, {len(a.q)} samples, bowl at "
+                      f"({a.path.bowl_xy[0]:.2f}, {a.path.bowl_xy[1]:.2f}), {a.in_bowl:.0%} in the bowl, "
+                      f"attempt {attempt}, {time.time() - t0:.1f} s", flush=True)
+    spec.save(out_dir / "task.json")
+    truth = {"tool_point": tool_point.tolist(), "bowl_landmark": "bowl", "task": task,
+             "bowl_xy": bowls, "durations": durations, "attempts": attempts_used, "seed": int(seed)}
+    (out_dir / "ground_truth.json").write_text(json.dumps(truth, indent=2) + "\n")
+    if progress:
+        print(f"{n} {task} demonstrations in {out_dir} ({time.time() - t_all:.0f} s)", flush=True)
+    return paths
+
+
+def plot_demos(attempts, tool_point, out_png, title: str = "") -> Path:
+    """Draw the task point's path relative to the bowl for ``attempts`` (side and top views)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    kin = KinematicModel.from_spec(BAXTER_LEFT, dtype=torch.float64)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+    for k, a in enumerate(attempts):
+        T = kin.fk(torch.as_tensor(a.q)).numpy()
+        pw = T[:, :3, 3] + np.einsum("sij,j->si", T[:, :3, :3], np.asarray(tool_point))
+        rel = bowl_frame_path(pw, a.path.bowl_xy)
+        t = np.arange(len(a.q)) * (a.path.t[1] - a.path.t[0])
+        axes[0].plot(rel[:, 0], rel[:, 2], lw=1, label=f"demo {k}")
+        axes[1].plot(rel[:, 0], rel[:, 1], lw=1)
+        axes[2].plot(t, np.linalg.norm(rel[:, :2], axis=1), lw=1)
+    for ax, (xl, yl) in zip(axes, [("x - bowl (m)", "z - bowl bottom (m)"), ("x - bowl (m)", "y - bowl (m)"),
+                                   ("time (s)", "horizontal distance to bowl (m)")]):
+        ax.set_xlabel(xl), ax.set_ylabel(yl), ax.grid(alpha=0.3)
+    axes[0].add_patch(plt.Rectangle((-L.BOWL_RADIUS, 0), 2 * L.BOWL_RADIUS, L.BOWL_HEIGHT, color="g", alpha=0.3))
+    axes[1].add_patch(plt.Circle((0, 0), L.BOWL_RADIUS, color="g", alpha=0.3))
+    axes[0].set_aspect("equal"), axes[1].set_aspect("equal")
+    axes[0].legend(fontsize=7)
+    fig.suptitle(title or "task point relative to the bowl")
+    fig.tight_layout()
+    out_png = Path(out_png)
+    fig.savefig(out_png, dpi=90)
+    plt.close(fig)
+    return out_png
+
+
+def main(argv=None) -> int:
+    ap = ArgumentParser(prog="python -m sim.demos", description="Generate simulated kinesthetic demonstrations.")
+    ap.add_argument("--task", required=True, help="powder or pour")
+    ap.add_argument("--n", type=int, default=11, help="number of demonstrations (default 11)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--task-point", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                    help="hidden tool point, metres in the gripper frame (default: the task's)")
+    ap.add_argument("--out", required=True, help="output folder")
+    ap.add_argument("--plot", metavar="FILE.png", help="also draw the paths relative to the bowl")
+    ap.add_argument("--quiet", action="store_true", help="no progress output")
+    args = ap.parse_args(argv)
+    if args.task not in TASK_POINTS:
+        raise UsageError(f"--task must be powder or pour, got {args.task!r}")
+    if args.n < 1:
+        raise UsageError(f"--n must be at least 1, got {args.n}")
+    if args.task_point is not None and (not np.all(np.isfinite(args.task_point))
+                                        or np.linalg.norm(args.task_point) > 0.5):
+        raise UsageError(f"--task-point must be 3 finite numbers within 0.5 m of the gripper, got {args.task_point}")
+    out = writable_dir(args.out)
+    kept = []
+    generate(args.task, out, n=args.n, seed=args.seed, task_point=args.task_point, progress=not args.quiet,
+             keep_attempts=kept)
+    if args.plot:
+        plot_demos(kept, args.task_point or TASK_POINTS[args.task], args.plot, f"{args.task}: {args.n} demonstrations")
+    return 0
+
+
+if __name__ == "__main__":
+    run_main(main, prog="python -m sim.demos")
