@@ -182,9 +182,11 @@ def _train(args, out: Path, guard, progress: dict) -> int:
                              f"demonstrations it was made with, or drop --resume to start over")
         print(f"resuming from {checkpoint_path(out)}: {resumed.restarts_done} of {cfg.restarts} restarts done",
               flush=True)
-    else:
+    elif checkpoint_path(out).is_file():  # an older run's; this run's first restart writes a new one
+        print(f"starting over: removing the checkpoint of an earlier run in {out} (--resume continues one)",
+              flush=True)
         with guard.critical():
-            remove_checkpoint(out)  # an older run's; this run's first restart writes a new one
+            remove_checkpoint(out)
     kin = KinematicModel.from_spec(ds.robot)
     print(f"{len(ds.demos)} demonstrations, {ds.n_observations} observations, landmarks "
           f"{list(ds.landmark_names)}; T={cfg.time_steps}, {cfg.restarts} restarts", flush=True)
