@@ -162,3 +162,14 @@ def test_guard_defers_signals_in_critical_sections(sig, status):
                 reached = True
     assert reached and info.value.exit_status == status
     assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL  # handlers restored
+
+
+def test_checkpoint_round_trip_with_every_restart_dropped(tmp_path):
+    from lfd.checkpoint import FitProgress, save_checkpoint
+    p = FitProgress(config={"seed": 0}, fingerprint="abc", restart_losses=(float("nan"),), loss_history=((),),
+                    em_iterations=(0,), notes=("restart 0 dropped: non-finite loss",))
+    save_checkpoint(tmp_path, p)
+    q = load_checkpoint(tmp_path)
+    assert q.best_state is None and q.best_restart is None and np.isnan(q.restart_losses[0])
+    assert q.notes == p.notes and q.mismatch({"seed": 0}, "abc") is None
+    assert "different options: seed=0 there, 1 now" in q.mismatch({"seed": 1}, "abc")
