@@ -15,6 +15,11 @@ env weights are ``w = w_ref + B u`` with ``B (Z, Z-1)`` an orthonormal basis of 
 (the tangent space of the constraint, Sec. IV-A); weights may be negative. After each M-step
 ``w`` is re-projected to sum exactly to 1 (to rounding).
 
+This module holds the settings, the restarts and pruning; the EM steps are in ``lfd.em``.
+After each restart ``fit`` reports a ``lfd.checkpoint.FitProgress`` (``on_restart``) and can
+continue from one (``resume``): the restarts' starts come from one generator per seed
+(``initial_guesses``), so a resumed fit ends exactly where an uninterrupted one does.
+
 Segment fixed to the robot (start above the source): there any environmental frame looks
 noisy, and an average of Z independent landmarks has 1/Z of the variance of one, which pulls
 weights towards the average. Measured on synthetic sets with 2 of 8 steps fixed in the world
