@@ -94,9 +94,12 @@ def _keyframes(task: str, bowl_xy, start: np.ndarray, rng) -> tuple[np.ndarray, 
     yaw = _facing(bowl_xy) + np.deg2rad(rng.uniform(-10, 10))  # facing differs by some degrees
     tilt = np.deg2rad(rng.uniform(-8, 8))                      # and so does the tilt
     x0, y0, z0, yaw0 = start
-    lift = start[:3] + [rng.normal(0, 0.01), rng.normal(0, 0.01), rng.uniform(0.03, 0.06)]
+    back = np.r_[SHOULDER_XY[0] - x0, SHOULDER_XY[1] - y0, 0.0]
+    back /= np.linalg.norm(back)  # lifting out of the source, slightly outwards
+    lift = start[:3] - back * rng.uniform(0.0, 0.04) + [rng.normal(0, 0.01), rng.normal(0, 0.01),
+                                                         rng.uniform(0.02, 0.04)]
     above = np.array([bx, by, top + rng.uniform(0.17, 0.21)]) + np.r_[rng.normal(0, 0.02, 2), 0]
-    mid = 0.5 * (lift + above) + [0, 0, rng.uniform(0.0, 0.03)]
+    mid = 0.5 * (lift + above) + [0, 0, rng.uniform(-0.01, 0.02)]
     side = np.array([-(above - lift)[1], (above - lift)[0], 0.0])
     mid += side / max(np.linalg.norm(side), 1e-9) * rng.normal(0, 0.03)  # approach deviates a few cm
     if task == "powder":

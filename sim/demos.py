@@ -44,7 +44,7 @@ MIN_IN_BOWL = 0.9
 MAX_ATTEMPTS_PER_DEMO = 40
 # Above this elbow flex Baxter's left_upper_forearm touches left_upper_elbow_visual (collision
 # meshes); the demonstrator's IK keeps below it.
-ELBOW_FLEX_MAX = 1.9
+ELBOW_FLEX_MAX = 2.0
 PATH_IK = IKConfig(max_iters=40, min_iters=1, pos_tol=2e-4, rot_tol=2e-3, max_step=0.2)
 LIFT_MAX = 0.254  # 10 inches
 
@@ -88,6 +88,10 @@ def track_path(kin: KinematicModel, path: DemoPath, tool_point: np.ndarray, q_re
         if not bool(r.success[0]):
             return None, (f"IK lost the path at t={path.t[i]:.2f}s (error {float(r.pos_err[0]) * 100:.1f} cm, "
                           f"{float(r.rot_err[0]):.3f} rad)")
+        fast = (r.q[0] - qs[-1]).abs() > 0.9 * kin.velocity * dt  # margin for the joint noise
+        if bool(fast.any()):  # stop early: this path would be rejected anyway
+            j = int(torch.argmax((r.q[0] - qs[-1]).abs() / kin.velocity))
+            return None, f"joint {kin.joint_names[j]} too fast at t={path.t[i]:.2f}s"
         qs.append(r.q[0])
     return torch.stack(qs).numpy(), ""
 
