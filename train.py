@@ -143,7 +143,7 @@ def main(argv=None) -> int:
 def _train(args, out: Path, guard, progress: dict) -> int:
     import torch
 
-    from lfd.checkpoint import (CheckpointError, atomic_torch_save, atomic_write_text, checkpoint_path,
+    from lfd.checkpoint import (CheckpointError, atomic_write_text, checkpoint_path,
                                 config_record, demos_fingerprint, load_checkpoint, remove_checkpoint,
                                 save_checkpoint)
     from lfd.demos import load_demos
@@ -229,8 +229,7 @@ def _train(args, out: Path, guard, progress: dict) -> int:
         if "bowl_landmark" in gt:
             summary["bowl_weight"] = result.env_before_pruning.get(gt["bowl_landmark"])
     with guard.critical():  # the model's files, each atomic, and never split by a signal
-        atomic_torch_save(m.state_dict(), out / "model.pt")
-        atomic_write_text(out / "config.json", json.dumps(m.config_dict(), indent=2) + "\n")
+        m.save(out)
         atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     print(f"learned in {summary['learning_time_s']:.1f}s: tool {np.round(m.tool.cpu().numpy(), 4).tolist()}, "
           f"env {summary['env_weights']}; wrote {out}", flush=True)

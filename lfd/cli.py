@@ -46,12 +46,12 @@ class ArgumentParser(argparse.ArgumentParser):
 def writable_dir(path: str | Path, what: str = "--out") -> Path:
     """Create ``path`` if needed and check it can be written; ``UsageError`` otherwise."""
     path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise UsageError(f"{what} {path}: exists and is not a folder")
     try:
         path.mkdir(parents=True, exist_ok=True)
     except (OSError, FileExistsError) as e:
         raise UsageError(f"{what} {path}: cannot create this folder ({e.strerror or e})") from e
-    if not path.is_dir():
-        raise UsageError(f"{what} {path}: exists and is not a folder")
     if not os.access(path, os.W_OK | os.X_OK):
         raise UsageError(f"{what} {path}: folder is not writable")
     return path
@@ -62,6 +62,8 @@ def run_main(main, argv=None, prog: str | None = None) -> None:
     prog = prog or Path(sys.argv[0]).name
     try:
         code = main(argv)
+    except SystemExit:  # argparse's own exit: no need to import the library's error types
+        raise
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         sys.exit(130)

@@ -237,11 +237,13 @@ class TaskModel:
         return {k: getattr(self, k).detach().cpu().clone() for k in self._TENSORS}
 
     def save(self, out_dir: str | Path) -> None:
-        """Write ``model.pt`` (tensors only) and ``config.json`` into ``out_dir``."""
+        """Write ``model.pt`` (tensors only) and ``config.json`` into ``out_dir``, each atomically."""
+        from lfd.checkpoint import atomic_torch_save, atomic_write_text
+
         out_dir = Path(out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)
-        torch.save(self.state_dict(), out_dir / "model.pt")
-        (out_dir / "config.json").write_text(json.dumps(self.config_dict(), indent=2) + "\n")
+        atomic_torch_save(self.state_dict(), out_dir / "model.pt")
+        atomic_write_text(out_dir / "config.json", json.dumps(self.config_dict(), indent=2) + "\n")
 
     @classmethod
     def load(cls, model_dir: str | Path, dtype: torch.dtype = torch.float64, device="cpu",

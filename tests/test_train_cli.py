@@ -161,7 +161,7 @@ CASES = [
     ("bad-covariance", _train("--covariance", "diag"), "argument --covariance: invalid choice: 'diag'"),
     ("restarts-0", _train("--restarts", "0"), "--restarts must be at least 1, got 0"),
     ("time-steps-1", _train("--time-steps", "1"), "--time-steps must be at least 2, got 1"),
-    ("out-is-file", _train(out=_out_is_file), "cannot create this folder (File exists)"),
+    ("out-is-file", _train(out=_out_is_file), "exists and is not a folder"),
     ("out-under-a-file", _train(out=_out_under_file), "cannot create this folder (Not a directory)"),
     ("device-cuda", _train("--device", "cuda"), "--device cuda: torch.cuda.is_available() is False"),
     ("resume-no-checkpoint", _train("--resume"), "--resume: ", ),
