@@ -331,8 +331,12 @@ def main(argv=None) -> int:
         raise UsageError(f"--task-point must be 3 finite numbers within 0.5 m of the gripper, got {args.task_point}")
     out = writable_dir(args.out)
     kept = []
-    generate(args.task, out, n=args.n, seed=args.seed, task_point=args.task_point, progress=not args.quiet,
-             keep_attempts=kept)
+    try:
+        generate(args.task, out, n=args.n, seed=args.seed, task_point=args.task_point, progress=not args.quiet,
+                 keep_attempts=kept)
+    except RuntimeError as e:  # not bad input: the demonstrator could not do the task here
+        print(f"python -m sim.demos: {e}", file=sys.stderr)
+        return 1
     if args.plot:
         plot_demos(kept, args.task_point or TASK_POINTS[args.task], args.plot, f"{args.task}: {args.n} demonstrations")
     return 0
