@@ -248,9 +248,15 @@ def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
                 return True
         return False
 
+    closed = []
+
     def close():
-        if p.isConnected(shadow):
-            p.disconnect(shadow)
+        # Once only: PyBullet reuses client ids, so a second disconnect (the world's close, then
+        # the garbage collector's finalizer) could cut off another, newer client.
+        if not closed:
+            closed.append(True)
+            if p.isConnected(shadow):
+                p.disconnect(shadow)
 
     return check_here, contextlib.nullcontext, close
 
