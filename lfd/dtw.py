@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-__all__ = ["dtw_align", "min_samples", "random_alignment", "alignment_step_counts"]
+__all__ = ["dtw_align", "min_samples", "random_alignment", "linear_alignment", "alignment_step_counts"]
 
 
 def min_samples(time_steps: int, offsets=(0, 1, 2)) -> int:
@@ -99,6 +99,15 @@ def dtw_align(cost: torch.Tensor, lengths, trans_cost: torch.Tensor, offsets=(0,
     if (t != 0).any():  # cannot happen with finite values; kept as an internal check
         raise RuntimeError("DTW backtracking did not end at the first step")
     return [out[m, :lengths[m]].copy() for m in range(M)], values
+
+
+def linear_alignment(n_samples: int, time_steps: int) -> np.ndarray:
+    """The uniform time warp ``(n_samples,)``: sample s at step ``floor(s T / n)``, from 0 to T-1.
+
+    With fewer samples than steps, offsets of 2 appear where needed (see ``min_samples``).
+    """
+    return np.minimum((np.arange(n_samples) * time_steps) // max(n_samples, 1), time_steps - 1) \
+        if n_samples >= time_steps else np.round(np.linspace(0, time_steps - 1, n_samples)).astype(np.int64)
 
 
 def random_alignment(n_samples: int, time_steps: int, rng: np.random.Generator,

@@ -42,7 +42,7 @@ import numpy as np
 import torch
 
 from lfd.checkpoint import CheckpointError, FitProgress, config_record, demos_fingerprint
-from lfd.dtw import min_samples, random_alignment
+from lfd.dtw import linear_alignment, min_samples, random_alignment
 from lfd.em import EM_FAILURES, EMFitter, FitData
 from lfd.model import COVARIANCES, OFFSETS, TaskModel
 
@@ -157,7 +157,10 @@ def initial_guesses(seed: int, lengths, time_steps: int, n_landmarks: int, cfg: 
     rng = np.random.default_rng(seed)
     Z = n_landmarks
     for r in itertools.count():
-        align = [random_alignment(n, time_steps, rng, cfg.offsets) for n in lengths]
+        if r == 0:  # the first restart starts from the plain uniform time warp
+            align = [linear_alignment(n, time_steps) for n in lengths]
+        else:
+            align = [random_alignment(n, time_steps, rng, cfg.offsets) for n in lengths]
         if fixed_tool is not None:
             tool0 = np.asarray(fixed_tool, dtype=float)
         else:

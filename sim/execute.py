@@ -1,8 +1,10 @@
 """Closed-loop execution of a task plan on the simulated Baxter (paper Sec. VI).
 
 The arm follows the planned waypoints under PyBullet's position control at the physics rate
-(``layout.SIM_DT``, 240 Hz), moving each roadmap edge at ``speed`` times the URDF velocity limits
-and dwelling one demonstration sampling interval on each time-step transition. Every
+(``layout.SIM_DT``, 240 Hz), moving each roadmap edge at ``speed`` times the URDF velocity limits;
+at each time-step transition it waits until the step it leaves has lasted as long as the
+demonstrations' expected time in that step (``expected_sojourn``), and at least one sampling
+interval. The path in configuration space is the plan's; only its timing is chosen here. Every
 ``sense_period`` seconds the executor senses the landmarks; when a task-relevant one has moved more
 than ``replan_threshold`` the planner re-plans from the commanded configuration and the current
 time step, and the rest of the old plan is dropped. Every re-plan's latency is recorded.
@@ -32,7 +34,7 @@ class ExecSettings:
     bowl needed; force: position-control force (N m); record_every: sim steps between recorded
     task-point samples; frame_every: sim steps between video frames (0: none)."""
 
-    speed: float = 0.8
+    speed: float = 0.5
     sense_period: float = 0.1
     replan_threshold: float = 0.01
     settle_s: float = 1.5
@@ -74,23 +76,38 @@ class RunResult:
 
 
 def plan_segments(configurations: np.ndarray, time_steps: np.ndarray, vmax: np.ndarray, dt: float,
-                  speed: float) -> list[tuple[np.ndarray, np.ndarray, float, int]]:
+                  speed: float, sojourn: np.ndarray | None = None) -> list[tuple[np.ndarray, np.ndarray, float, int]]:
     """Timed segments ``(q_from, q_to, duration_s, time_step)`` of a plan.
 
-    A roadmap edge (q changes, t constant) takes ``max_j |dq_j| / (speed vmax_j)``; a time-step
-    transition (q constant) dwells one sampling interval ``dt``. ``time_step`` is the task time step
-    during the segment (the later one for transitions).
+    A roadmap edge (q changes, t constant) takes ``max_j |dq_j| / (speed vmax_j)``. A time-step
+    transition (q constant) dwells at least one sampling interval ``dt``; with ``sojourn (T,)``,
+    the expected time the demonstrations spent in each step, it dwells until the step being left
+    has lasted that long (the demonstrations' pace: pouring and dumping take the time they took
+    when demonstrated, which the particles need). ``time_step`` is the task time step during the
+    segment.
     """
     segs = []
+    spent = 0.0
     for i in range(len(configurations) - 1):
         q0, q1 = configurations[i], configurations[i + 1]
         t0, t1 = int(time_steps[i]), int(time_steps[i + 1])
         move = float(np.max(np.abs(q1 - q0) / (speed * vmax)))
         if move > 1e-9:
             segs.append((q0, q1, move, t0))
+            spent += move
         if t1 != t0:
-            segs.append((q1, q1, dt, t1))
+            wait = dt if sojourn is None else max(dt, float(sojourn[t0]) - spent)
+            segs.append((q1, q1, wait, t0))
+            spent = 0.0
     return segs
+
+
+def expected_sojourn(log_trans: np.ndarray, offsets, dt: float) -> np.ndarray:
+    """``(T,)`` expected seconds per time step of the learned chain: ``dt / (1 - p(t | t))``."""
+    if 0 not in offsets:
+        return np.full(len(log_trans), dt)
+    p_stay = np.exp(np.asarray(log_trans)[:, list(offsets).index(0)])
+    return dt / np.clip(1.0 - p_stay, 1e-3, 1.0)
 
 
 class _ContactLog:
@@ -139,6 +156,7 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
     dt = float(model.task.dt) if model.task is not None else 0.1
     tool = model.tool.detach().cpu().numpy()
     keep = model.landmark_names
+    sojourn = expected_sojourn(model.log_trans.detach().cpu().numpy(), model.offsets, dt)
     result = RunResult()
     q_cmd = np.asarray(L.HOME_Q if q_start is None else q_start, dtype=float)
     world.set_q(q_cmd)
@@ -156,7 +174,7 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         result.reason = f"no initial plan: {res.status} ({res.message})"
         return result
     planned_at = _relevant(names, poses, keep)
-    segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed)
+    segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed, sojourn)
     sense_every = max(1, int(round(s.sense_period / L.SIM_DT)))
     moved = scenario is None or scenario.bowl_after is None
     step, t_now, seg_i, seg_t = 0, 0, 0, 0.0
@@ -196,7 +214,7 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         result.edges_evaluated.append(res.n_edges_evaluated)
         planned_at = now
         if res.ok:
-            segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed)
+            segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed, sojourn)
             seg_i, seg_t = 0, 0.0
     settle = int(s.settle_s / L.SIM_DT)
     for k in range(settle):

@@ -10,8 +10,8 @@ Drawing rule (also stated in the README):
 * the **lamp shade** hangs above the carrying line (a uniform fraction ``[0.3, 0.8]`` of the
   way, 5 cm sideways at most), its lower rim ``LAMP_BOTTOM_RANGE`` above the table: the
   height through which the arm lifts and carries the tool;
-* ``powder``: the bowl moves midway through the task (when the executed time step reaches
-  ``move_at_step``) to a second uniform place in the square at least ``MIN_MOVE`` away;
+* ``powder``: the bowl moves during the task (when the executed time step reaches
+  ``move_at_step`` = T/4, while the spoon is being carried towards it, before the dump) to a second uniform place in the square at least ``MIN_MOVE`` away;
   the four distractor markers are uniform in the square, lifted ``layout.MARKER_HEIGHT...``;
 * ``pour``: the vase, the scissors, the spoon and the (landmark) paper-towel roll are the
   other sensed landmarks; vase and scissors/spoon are uniform in the square;
@@ -133,7 +133,7 @@ def draw_scenario(task: str, seed: int, time_steps: int = 24) -> Scenario:
             continue
         return Scenario(task=task, seed=int(seed), placements=placements,
                         bowl_after=None if bowl_after is None else tuple(bowl_after),
-                        move_at_step=(time_steps // 2) if bowl_after is not None else None)
+                        move_at_step=(time_steps // 4) if bowl_after is not None else None)
     raise RuntimeError(f"could not draw a solvable {task} scenario for seed {seed}")
 
 
