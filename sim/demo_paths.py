@@ -81,8 +81,21 @@ class DemoPath:
         return float(self.t[-1])
 
 
+# Near the body the left arm reaches across and a person turns the tool towards the right:
+# the facing turns clockwise from the shoulder->bowl bearing by up to NEAR_TURN, linearly from
+# NEAR_FAR[1] down to NEAR_FAR[0] metres from the shoulder. Measured with IK (64 random seeds,
+# self and table collision): pointing along the bearing, a level spoon 0.12-0.28 m above the
+# table at x = 0.46 has no collision-free solution (the forearm hits the torso); turned 30-60
+# degrees clockwise, most solutions are free. Far away (>= 0.85 m) only the bearing is reachable.
+NEAR_TURN = np.deg2rad(45.0)
+NEAR_FAR = (0.5, 0.85)
+
+
 def _facing(bowl_xy) -> float:
-    return float(np.arctan2(bowl_xy[1] - SHOULDER_XY[1], bowl_xy[0] - SHOULDER_XY[0]))
+    """The nominal yaw over the bowl: the bearing from the shoulder, turned right near the body."""
+    dx, dy = bowl_xy[0] - SHOULDER_XY[0], bowl_xy[1] - SHOULDER_XY[1]
+    near = np.clip((NEAR_FAR[1] - np.hypot(dx, dy)) / (NEAR_FAR[1] - NEAR_FAR[0]), 0.0, 1.0)
+    return float(np.arctan2(dy, dx) - NEAR_TURN * near)
 
 
 def _keyframes(task: str, bowl_xy, start: np.ndarray, rng) -> tuple[np.ndarray, list]:

@@ -10,8 +10,8 @@ only if every sample is within the joint limits, no joint exceeds its URDF veloc
 sampling interval, no configuration collides (self, table, containers, distractors), and its
 replay under physics (position control, particles in the tool) ends with >= 90 % of the
 particles in the bowl and no contact of the arm or tool with anything but particles; otherwise
-a new one is drawn. Bowl positions whose path the arm cannot follow are drawn again too, so the
-bowl is uniform over the part of the square where the task can be done.
+a new path (posture, timing, distractors) is drawn for the *same* bowl position, so that the
+bowls stay uniform over the whole square.
 
 Command line: ``python -m sim.demos --task powder|pour [--n 11] [--seed S]
 [--task-point X Y Z] --out DIR``.
@@ -42,9 +42,6 @@ __all__ = ["generate", "DemoAttempt", "track_path", "replay", "plot_demos", "mai
 
 MIN_IN_BOWL = 0.9
 MAX_ATTEMPTS_PER_DEMO = 40
-# Above this elbow flex Baxter's left_upper_forearm touches left_upper_elbow_visual (collision
-# meshes); the demonstrator's IK keeps below it.
-ELBOW_FLEX_MAX = 2.0
 PATH_IK = IKConfig(max_iters=40, min_iters=1, pos_tol=2e-4, rot_tol=2e-3, max_step=0.2)
 LIFT_MAX = 0.254  # 10 inches
 
@@ -172,15 +169,13 @@ def replay(world, q: np.ndarray, dt: float, settle: float = 0.3, hold: float = 0
     return world.fraction_in_bowl(), sorted(set(hits))
 
 
-def _draw_one(world, kin, kin_ik, fns, task, tool_point, dt, rng) -> DemoAttempt:
-    c, h = np.asarray(L.SQUARE_CENTER_XY), L.SQUARE_HALF
-    bowl_xy = c + rng.uniform(-h, h, 2)
+def _draw_one(world, kin, fns, task, bowl_xy, tool_point, dt, rng) -> DemoAttempt:
     path = draw_path(task, bowl_xy, _start_pose(kin, tool_point), dt, rng)
     lo, hi = kin.lower.numpy(), kin.upper.numpy()
-    # redundancy resolved differently per demonstration; the elbow kept well below ELBOW_FLEX_MAX
+    # redundancy resolved differently per demonstration
     q_rest = L.HOME_Q + rng.normal(0.0, 0.3, 7) + np.r_[0, 0, 0, -0.3, 0, 0, 0]
-    q_rest = np.clip(q_rest, lo + 0.1, np.minimum(hi, ELBOW_FLEX_MAX) - 0.3)
-    q, why = track_path(kin_ik, path, tool_point, q_rest, dt)
+    q_rest = np.clip(q_rest, lo + 0.1, hi - 0.3)
+    q, why = track_path(kin, path, tool_point, q_rest, dt)
     if q is None:
         return DemoAttempt(np.zeros((0, 7)), path, {}, why)
     q = q + _smooth_noise(rng, len(q), 7, 0.003, max(2, int(0.3 / dt)))  # small joint noise
@@ -238,9 +233,6 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
     out_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     kin = KinematicModel.from_spec(BAXTER_LEFT, dtype=torch.float64)
-    kin_ik = kin.to()
-    kin_ik.upper = kin.upper.clone()
-    kin_ik.upper[3] = min(float(kin.upper[3]), ELBOW_FLEX_MAX)  # left_e1
     torch.set_num_threads(1)
     paths, bowls, durations, attempts_used = [], [], [], []
     t_all = time.time()
@@ -249,14 +241,18 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
                "all": make_collision_fns(world, obstacles=True)}
         for i in range(int(n)):
             t0 = time.time()
+            # the bowl is drawn once per demonstration and kept through the attempts: redrawing
+            # it after a failure would bias the bowl positions towards the easy part of the square
+            bowl_xy = np.asarray(L.SQUARE_CENTER_XY) + rng.uniform(-L.SQUARE_HALF, L.SQUARE_HALF, 2)
             for attempt in range(1, MAX_ATTEMPTS_PER_DEMO + 1):
-                a = _draw_one(world, kin, kin_ik, fns, task, tool_point, spec.dt, rng)
+                a = _draw_one(world, kin, fns, task, bowl_xy, tool_point, spec.dt, rng)
                 if not a.failure:
                     break
                 if progress:
                     print(f"  demo {i + 1}/{n}: attempt {attempt} rejected: {a.failure}", flush=True)
             else:
-                raise RuntimeError(f"could not draw demonstration {i + 1} in {MAX_ATTEMPTS_PER_DEMO} attempts "
+                raise RuntimeError(f"could not draw demonstration {i + 1} (bowl at ({bowl_xy[0]:.2f}, {bowl_xy[1]:.2f})) in "
+                                   f"{MAX_ATTEMPTS_PER_DEMO} attempts "
                                    f"(last: {a.failure})")
             names, poses = world.sensed_landmarks()
             demo = Demonstration(q=a.q, dt=spec.dt, landmarks=poses, name=f"demo_{i:03d}")
