@@ -65,7 +65,7 @@ class TaskSpec:
 
 # The manual tool points match the tool geometry built in sim/assets.py (gripper frame).
 POWDER = TaskSpec(name="powder", dt=0.1, time_steps=24, manual_tool_point=(0.0, 0.0, 0.20))
-POUR = TaskSpec(name="pour", dt=0.02, time_steps=24, manual_tool_point=(0.0, 0.07, 0.215))
+POUR = TaskSpec(name="pour", dt=0.02, time_steps=24, manual_tool_point=(-0.08, 0.07, 0.135))
 
 TASKS = {t.name: t for t in (POWDER, POUR)}
 

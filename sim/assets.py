@@ -73,20 +73,21 @@ def tool_boxes(task: str) -> list[tuple]:
         y0, y1, yn = L.PITCHER_FLOOR_Y, L.PITCHER_RIM_Y, L.PITCHER_NOTCH_Y
         boxes = [(L.PITCHER_HANDLE[0], L.PITCHER_HANDLE[1], ident),
                  ((0, y0 - w / 2, zc), (r + w, w / 2, r + w), ident)]                     # floor
-        for c, h, q in _ring(r + w / 2, w, (y0 - w, y1), L.PITCHER_SEGMENTS, axis="y", skip=(0,)):
+        spout = L.PITCHER_SPOUT_SEGMENT
+        for c, h, q in _ring(r + w / 2, w, (y0 - w, y1), L.PITCHER_SEGMENTS, axis="y", skip=(spout,)):
             boxes.append(((c[0], c[1], c[2] + zc), h, q))
-        for c, h, q in _ring(r + w / 2, w, (y0 - w, yn), L.PITCHER_SEGMENTS, axis="y", skip=range(1, 99)):
-            boxes.append(((c[0], c[1], c[2] + zc), h, q))                                 # notched front
+        others = [k for k in range(L.PITCHER_SEGMENTS) if k != spout]
+        for c, h, q in _ring(r + w / 2, w, (y0 - w, yn), L.PITCHER_SEGMENTS, axis="y", skip=others):
+            boxes.append(((c[0], c[1], c[2] + zc), h, q))                                 # notched side
         lip = np.array(L.PITCHER_SPOUT_LIP)
-        start = np.array([0.0, yn - w, zc + r])
+        start = np.array([-r, yn - w, zc])
         d = lip - start
-        length = float(np.linalg.norm(d[1:]))
-        pitch = -math.atan2(d[1], d[2])                                                # about x
-        q = p.getQuaternionFromEuler((pitch, 0, 0))
+        length = float(np.linalg.norm(d[:2]))
+        q = p.getQuaternionFromEuler((0, 0, math.atan2(d[1], d[0])))                    # about z
         mid = (start + lip) / 2
-        boxes.append((tuple(mid + [0, -w / 2, 0]), (0.022, w / 2, length / 2 + 0.005), q))  # trough
-        for sx in (-1, 1):
-            boxes.append((tuple(mid + [sx * 0.022, 0.008, 0]), (w / 2, 0.012, length / 2 + 0.005), q))
+        boxes.append((tuple(mid + [0, -w / 2, 0]), (length / 2 + 0.005, w / 2, 0.022), q))  # trough
+        for sz in (-1, 1):
+            boxes.append((tuple(mid + [0, 0.008, sz * 0.022]), (length / 2 + 0.005, 0.012, w / 2), q))
         return boxes
     raise ValueError(f"task must be 'powder' or 'pour', got {task!r}")
 

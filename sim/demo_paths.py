@@ -5,8 +5,9 @@ with its origin moved to the hidden task point. Each keyframe holds the task poi
 position and three angles:
 
 * ``yaw``: the facing direction (the tool's pointing axis, gripper z, projected on the table);
-* ``pitch``: rotation about gripper x that tips the tool's far end down (pouring);
-* ``roll``: rotation about gripper z, the tool's long axis (turning the spoon over).
+* ``pitch``: rotation about gripper x that tips the tool's far end up or down (a few degrees);
+* ``roll``: rotation about gripper z, the tool's long axis (turning the spoon over, tipping the
+  pitcher's spout, on its -x side, down).
 
 ``R_world_tool = R_level(yaw) @ R_x(pitch) @ R_z(roll)``, where ``R_level`` has gripper z
 horizontal along ``yaw`` and gripper y (the tool's "up", see ``sim.layout``) equal to world +z.
@@ -32,8 +33,8 @@ __all__ = ["TASK_POINTS", "SHOULDER_XY", "DemoPath", "rotation_level", "tool_rot
 
 # Default hidden task points, metres in the gripper frame (see sim.layout for the tools):
 # powder -- the centre of the scoop just above its floor, on the spoon's long axis, i.e. the
-# point the dumping roll turns about; pour -- a point just below the spout lip.
-TASK_POINTS = {"powder": (0.0, 0.01, 0.17), "pour": (0.0, 0.045, 0.205)}
+# point the dumping roll turns about; pour -- a point just below the spout lip (-x side).
+TASK_POINTS = {"powder": (0.0, 0.01, 0.17), "pour": (-0.07, 0.045, 0.135)}
 SHOULDER_XY = (0.064, 0.259)  # left_upper_shoulder above the base, for the facing direction
 KEYS = ("x", "y", "z", "yaw", "pitch", "roll")
 
@@ -102,8 +103,6 @@ def _keyframes(task: str, bowl_xy, start: np.ndarray, rng) -> tuple[np.ndarray, 
     """Keyframes (K, 6) and per-segment (nominal duration, pause after the keyframe) lists."""
     bx, by = bowl_xy
     top = L.TABLE_TOP_Z
-    d = np.array([bx - SHOULDER_XY[0], by - SHOULDER_XY[1]])
-    d /= np.linalg.norm(d)
     yaw = _facing(bowl_xy) + np.deg2rad(rng.uniform(-10, 10))  # facing differs by some degrees
     tilt = np.deg2rad(rng.uniform(-8, 8))                      # and so does the tilt
     x0, y0, z0, yaw0 = start
@@ -120,9 +119,8 @@ def _keyframes(task: str, bowl_xy, start: np.ndarray, rng) -> tuple[np.ndarray, 
         turned = dict(roll=np.deg2rad(120 + rng.uniform(-10, 10)), pitch=tilt)
         hold, turn_t = rng.uniform(0.4, 0.9), 2.0
     else:
-        work = np.array([bx, by, top + L.BOWL_HEIGHT + rng.uniform(0.05, 0.07)])
-        work[:2] -= d * rng.uniform(0.02, 0.04) + rng.normal(0, 0.008, 2)  # spout over the near half
-        turned = dict(roll=0.0, pitch=np.deg2rad(100 + rng.uniform(-6, 6)))
+        work = np.array([bx, by, top + L.BOWL_HEIGHT + rng.uniform(0.05, 0.08)]) + np.r_[rng.normal(0, 0.01, 2), 0]
+        turned = dict(roll=np.deg2rad(105 + rng.uniform(-8, 8)), pitch=tilt)  # the spout (-x) turned down
         hold, turn_t = rng.uniform(1.2, 2.0), 2.4
     end = start[:3] + np.r_[rng.normal(0, 0.03, 2), rng.uniform(0.0, 0.05)]
     yaw_mid = 0.5 * (yaw0 + yaw)

@@ -12,7 +12,7 @@ demonstrator checks reachability with IK and may adjust ``SQUARE_CENTER_XY`` /
 
 Tool geometry lives in the **gripper frame** (``left_gripper``: z out of the fingers, the
 fingers close along y). Both tools are held with their "up" along gripper +y and pointing
-along gripper +z: the spoon's tip and the pitcher's spout are at the far (+z) end.
+along gripper +z; the spoon's tip is at the far (+z) end, the pitcher's spout on its -x side.
 """
 
 from __future__ import annotations
@@ -89,8 +89,10 @@ SPOON_WALL_THICKNESS = 0.004
 SPOON_TIP = (0.0, 0.0, 0.20)
 
 # Pitcher: a handle z in [-0.02, 0.085], a cylindrical cup with axis along y through
-# (x=0, z=0.135): inner radius 0.045, floor top y=-0.05, rim y=0.08; the front (+z) wall
-# is notched down to y=0.05 and a spout trough runs out to z=0.215, its lip at y=0.07.
+# (x=0, z=0.135): inner radius 0.045, floor top y=-0.05, rim y=0.08. The spout points along
+# gripper -x (to the right of the pointing direction when level), so that pouring is a wrist
+# roll about gripper z like the spoon's dump (rolling about +z lowers the -x side): the -x wall
+# is notched down to y=0.05 and a trough runs out to x=-0.08, its lip at y=0.07.
 PITCHER_HANDLE = ((0.0, 0.0, 0.0325), (0.008, 0.006, 0.0525))
 PITCHER_AXIS_Z = 0.135
 PITCHER_RADIUS = 0.045
@@ -99,7 +101,8 @@ PITCHER_FLOOR_Y = -0.05
 PITCHER_RIM_Y = 0.08
 PITCHER_NOTCH_Y = 0.05
 PITCHER_SEGMENTS = 16
-PITCHER_SPOUT_LIP = (0.0, 0.07, 0.215)
+PITCHER_SPOUT_SEGMENT = 12                # the ring segment at -x (angle 270 deg from +z towards +x)
+PITCHER_SPOUT_LIP = (-0.08, 0.07, 0.135)
 
 TOOL_MASS = 0.2
 
