@@ -41,12 +41,15 @@ __all__ = ["TaskPlannerSettings", "TaskPlanner", "biased_configurations"]
 class TaskPlannerSettings:
     """n_vertices: roadmap size; bias_fraction: share of vertices from the task model;
     regrow_distance: landmark motion (m) that triggers new biased samples; regrow_vertices: how
-    many; fk_cache_rows: rows of cached FK at most; seed: of every random draw."""
+    many; max_vertices: the roadmap never grows past this (default 3 x n_vertices), so a long run
+    of landmark moves cannot grow memory without bound; fk_cache_rows: rows of cached FK at most;
+    seed: of every random draw."""
 
     n_vertices: int = 1000
     bias_fraction: float = 0.6
     regrow_distance: float = 0.10
     regrow_vertices: int = 200
+    max_vertices: int | None = None
     fk_cache_rows: int = 400_000
     seed: int = 0
     roadmap: RoadmapSettings = field(default_factory=RoadmapSettings)
@@ -201,9 +204,11 @@ class TaskPlanner:
     def _maybe_regrow(self) -> None:
         s = self.settings
         pos = self._landmarks[:, :3, 3].cpu().numpy()
-        if min(np.abs(pos - g).max() for g in self._grown_for) <= s.regrow_distance or not s.regrow_vertices:
+        room = (s.max_vertices or 3 * s.n_vertices) - self.roadmap.n
+        if (min(np.abs(pos - g).max() for g in self._grown_for) <= s.regrow_distance
+                or min(room, s.regrow_vertices) <= 0):
             return
-        B = self._biased(s.regrow_vertices)
+        B = self._biased(min(room, s.regrow_vertices))
         if len(B):
             B = B[~self.roadmap.in_collision(B)]
             self.roadmap.add_vertices(B, check=False)
