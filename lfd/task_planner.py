@@ -16,9 +16,9 @@ solutions are mixed with uniform samples (``bias_fraction``). When the task-rele
 by more than ``regrow_distance`` from every set the roadmap was grown for, new biased samples are
 added to the same roadmap; it is never rebuilt.
 
-FK of configurations handed to the cost is cached per batch (a bounded LRU keyed by the batch's
-bytes): the roadmap's vertices and quadrature points repeat across re-plans, only the landmarks
-change.
+FK of every configuration handed to the cost (roadmap vertices and the quadrature points of
+edges) is computed once and cached per configuration (bounded): those points repeat across
+re-plans, only the landmarks change.
 """
 
 from __future__ import annotations
@@ -92,29 +92,43 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
 
 
 class _FKCache:
-    """Bounded LRU of FK per batch of configurations."""
+    """FK of configurations, computed once per configuration and kept (at most ``max_rows``).
+
+    Rows are keyed by their bytes: roadmap vertices and the quadrature points of an edge are the
+    same arrays every time the search touches them, whatever the landmarks. When full, the cache
+    starts afresh (bounded memory over any number of re-plans).
+    """
 
     def __init__(self, kin, max_rows: int):
         self.kin, self.max_rows = kin, max_rows
-        self._store: OrderedDict[bytes, torch.Tensor] = OrderedDict()
-        self.rows = 0
+        self._index: dict[bytes, int] = {}
+        self._T = torch.empty(0, 4, 4, dtype=kin.dtype, device=kin.device)  # (N, 4, 4)
         self.hits = self.misses = 0
 
+    @property
+    def rows(self) -> int:
+        return len(self._index)
+
     def __call__(self, Q: torch.Tensor) -> torch.Tensor:
-        key = Q.detach().cpu().numpy().tobytes()
-        hit = self._store.get(key)
-        if hit is not None:
-            self._store.move_to_end(key)
-            self.hits += 1
-            return hit
-        self.misses += 1
-        T = self.kin.fk(Q)
-        self._store[key] = T
-        self.rows += len(Q)
-        while self.rows > self.max_rows and self._store:
-            _, old = self._store.popitem(last=False)
-            self.rows -= len(old)
-        return T
+        """``Q: (B, d)`` -> ``T_world_ee: (B, 4, 4)``."""
+        Qn = np.ascontiguousarray(Q.detach().cpu().numpy())
+        keys = [row.tobytes() for row in Qn]
+        idx = np.fromiter((self._index.get(k, -1) for k in keys), dtype=np.int64, count=len(keys))
+        miss = np.flatnonzero(idx < 0)
+        self.hits += len(keys) - len(miss)
+        self.misses += len(miss)
+        if len(miss):
+            if self.rows + len(miss) > self.max_rows:
+                self._index.clear()
+                self._T = self._T[:0]
+                return self(Q)
+            T_new = self.kin.fk(Q[torch.as_tensor(miss, device=Q.device)])
+            base = self.rows
+            for j, i in enumerate(miss):
+                # a key repeated inside this batch maps to its first computed row
+                idx[i] = self._index.setdefault(keys[i], base + j)
+            self._T = torch.cat([self._T, T_new])
+        return self._T[torch.as_tensor(idx, device=self._T.device)]
 
 
 class TaskPlanner:
