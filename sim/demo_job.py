@@ -1,12 +1,13 @@
 """``make demo``: the main job end to end on the built-in powder-transfer task.
 
-Generates demonstrations, learns the task, and evaluates it on 10 scenarios; each stage
-that is not built yet is reported as such instead of being faked.
+1. ``python -m sim.demos`` makes 11 kinesthetic demonstrations (skipped when they exist);
+2. ``train.py`` learns the task model of every compared variant (skipped when trained);
+3. ``plan.py --evaluate`` runs every variant on 10 seeded scenarios in PyBullet, prints the
+   paper's table and writes the results, TensorBoard logs and a GIF of a run.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -14,30 +15,23 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def _have(module: str) -> bool:
-    return importlib.util.find_spec(module) is not None
-
-
 def _run(args: list[str]) -> None:
-    print("$ " + " ".join(args), flush=True)
+    print("$ python " + " ".join(args), flush=True)
     subprocess.run([sys.executable, *args], cwd=ROOT, check=True)
 
 
 def main() -> int:
-    stages = [
-        ("learning", (ROOT / "train.py").is_file() and _have("lfd.learn"),
-         ["train.py", "--task", "powder", "--out", "runs/powder"]),
-        ("evaluation", (ROOT / "plan.py").is_file() and _have("sim.evaluate"),
-         ["plan.py", "--evaluate", "--task", "powder", "--scenarios", "10", "--out", "runs/powder/eval",
-          "--video"]),
-    ]
-    for name, ready, args in stages:
-        if not ready:
-            print(f"make demo: the {name} stage is not built yet; stopping here.", flush=True)
-            return 0
-        _run(args)
-    print("make demo: done. Results in runs/powder/ (summary.json, eval/results.json, TensorBoard logs: "
-          "tensorboard --logdir runs/powder)")
+    demos = ROOT / "runs" / "demos" / "powder"
+    if not any(demos.glob("*.npz")):
+        _run(["-m", "sim.demos", "--task", "powder", "--n", "11", "--seed", "0", "--out", str(demos)])
+    _run(["plan.py", "--evaluate", "--task", "powder", "--scenarios", "10", "--workers", "2",
+          "--demos", str(demos), "--out", "runs/powder/eval", "--models", "runs/powder/models", "--video"])
+    print("\nmake demo: done.\n"
+          "  demonstrations:   runs/demos/powder/ (picture: docs/demos.png)\n"
+          "  models:           runs/powder/models/<tool>-<env>/ (model.pt, config.json, summary.json)\n"
+          "  TensorBoard:      .venv/bin/tensorboard --logdir runs/powder/models\n"
+          "  results:          runs/powder/eval/results.json (per scenario: runs.jsonl)\n"
+          "  videos:           runs/powder/eval/*.gif")
     return 0
 
 
@@ -47,3 +41,6 @@ if __name__ == "__main__":
     except subprocess.CalledProcessError as e:
         print(f"make demo: a stage failed with exit status {e.returncode}", file=sys.stderr)
         sys.exit(e.returncode or 1)
+    except KeyboardInterrupt:
+        print("make demo: interrupted; run it again to continue where it stopped", file=sys.stderr)
+        sys.exit(130)
