@@ -107,7 +107,7 @@ def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roa
                               settings=TaskPlannerSettings(n_vertices=roadmap_size, seed=scenario.seed))
         frames = [] if video_path else None
         res = execute_plan(world, planner, scenario,
-                           ExecSettings(frame_every=24 if video_path else 0), frames=frames)
+                           ExecSettings(frame_every=48 if video_path else 0), frames=frames)
         if video_path and frames:
             import imageio.v2 as imageio
             imageio.mimsave(video_path, frames[::2], duration=0.2, loop=0)
