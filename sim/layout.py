@@ -3,7 +3,8 @@
 Conventions: x forward (away from the robot), y to the robot's left, z up; the world
 frame *is* Baxter's URDF root ``base``. Baxter's pedestal reaches z = -0.93 (the floor) and,
 at table height, extends to x = 0.22 (x = 0.42 at the floor), so the table's near edge sits
-at x = 0.40 with its legs inset to clear the pedestal's feet.
+at x = 0.30 (a bowl at the square's near edge stands fully on the table) with its legs inset
+0.16 m to clear the pedestal's feet.
 
 The 30-inch (0.762 m) square on the table is where the bowl and the other sensed landmarks
 are sampled (paper, Sec. VI-B). Its centre is shifted to the left arm's side (y > 0). The
@@ -21,10 +22,10 @@ import numpy as np
 
 # --- table ---------------------------------------------------------------------------
 TABLE_TOP_Z = -0.20                      # top surface height
-TABLE_CENTER_XY = (0.835, 0.35)          # centre of the table top
-TABLE_HALF_XY = (0.435, 0.65)            # x in [0.40, 1.27], y in [-0.30, 1.00]
+TABLE_CENTER_XY = (0.785, 0.35)          # centre of the table top
+TABLE_HALF_XY = (0.485, 0.65)            # x in [0.30, 1.27], y in [-0.30, 1.00]
 TABLE_THICKNESS = 0.03
-TABLE_LEG_INSET = 0.07                   # legs this far inside the corners
+TABLE_LEG_INSET = 0.16                   # legs this far inside the corners (near legs x in [0.435, 0.485])
 FLOOR_Z = -0.926                         # bottom of Baxter's pedestal
 
 # --- the 30-inch square where landmarks are sampled ----------------------------------
