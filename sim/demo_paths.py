@@ -99,7 +99,7 @@ def _facing(bowl_xy) -> float:
     return float(np.arctan2(dy, dx) - NEAR_TURN * near)
 
 
-def _keyframes(task: str, bowl_xy, start: np.ndarray, rng) -> tuple[np.ndarray, list]:
+def _keyframes(task: str, bowl_xy, start: np.ndarray, rng, tool_point) -> tuple[np.ndarray, list]:
     """Keyframes (K, 6) and per-segment (nominal duration, pause after the keyframe) lists."""
     bx, by = bowl_xy
     top = L.TABLE_TOP_Z
@@ -110,7 +110,8 @@ def _keyframes(task: str, bowl_xy, start: np.ndarray, rng) -> tuple[np.ndarray, 
     back /= np.linalg.norm(back)  # lifting out of the source, slightly outwards
     lift = start[:3] - back * rng.uniform(0.0, 0.04) + [rng.normal(0, 0.01), rng.normal(0, 0.01),
                                                          rng.uniform(0.02, 0.04)]
-    above = np.array([bx, by, top + rng.uniform(0.17, 0.21)]) + np.r_[rng.normal(0, 0.02, 2), 0]
+    clear = 0.08 if task == "pour" else 0.0  # the pitcher's cup hangs 0.1 m below its task point
+    above = np.array([bx, by, top + clear + rng.uniform(0.17, 0.21)]) + np.r_[rng.normal(0, 0.02, 2), 0]
     mid = 0.5 * (lift + above) + [0, 0, rng.uniform(-0.01, 0.02)]
     side = np.array([-(above - lift)[1], (above - lift)[0], 0.0])
     mid += side / max(np.linalg.norm(side), 1e-9) * rng.normal(0, 0.03)  # approach deviates a few cm
@@ -119,8 +120,14 @@ def _keyframes(task: str, bowl_xy, start: np.ndarray, rng) -> tuple[np.ndarray, 
         turned = dict(roll=np.deg2rad(120 + rng.uniform(-10, 10)), pitch=tilt)
         hold, turn_t = rng.uniform(0.4, 0.9), 2.0
     else:
-        work = np.array([bx, by, top + L.BOWL_HEIGHT + rng.uniform(0.05, 0.08)]) + np.r_[rng.normal(0, 0.01, 2), 0]
+        # the cup hangs beside and 0.1 m below the spout: the task point well above the rim
+        work = np.array([bx, by, top + L.BOWL_HEIGHT + rng.uniform(0.12, 0.15)]) + np.r_[rng.normal(0, 0.01, 2), 0]
         turned = dict(roll=np.deg2rad(105 + rng.uniform(-8, 8)), pitch=tilt)  # the spout (-x) turned down
+        # a person aims the stream, not the task point: the liquid leaves between the spout lip
+        # and the centre of the cup's open top; that point goes over the bowl's centre when turned
+        exit_pt = 0.5 * (np.array(L.PITCHER_SPOUT_LIP) + [0.0, L.PITCHER_RIM_Y, L.PITCHER_AXIS_Z])
+        R_t = tool_rotation(yaw, turned["pitch"], turned["roll"])[0]
+        work[:2] -= (R_t @ (exit_pt - np.asarray(tool_point)))[:2]
         hold, turn_t = rng.uniform(1.2, 2.0), 2.4
     end = start[:3] + np.r_[rng.normal(0, 0.03, 2), rng.uniform(0.0, 0.05)]
     yaw_mid = 0.5 * (yaw0 + yaw)
@@ -141,7 +148,7 @@ def _keyframes(task: str, bowl_xy, start: np.ndarray, rng) -> tuple[np.ndarray, 
 
 
 def draw_path(task: str, bowl_xy, start: np.ndarray, dt: float, rng: np.random.Generator,
-              duration_scale: float | None = None) -> DemoPath:
+              duration_scale: float | None = None, tool_point=None) -> DemoPath:
     """A random human-like demonstration path.
 
     Parameters
@@ -152,10 +159,14 @@ def draw_path(task: str, bowl_xy, start: np.ndarray, dt: float, rng: np.random.G
     dt : sampling interval, s.
     rng : randomness.
     duration_scale : total duration factor (default uniform in [0.7, 1.3], i.e. +-30 %).
+    tool_point : (3,) the followed task point in the gripper frame (default ``TASK_POINTS[task]``);
+        pouring aims the pitcher's stream, so the pour path depends on where this point is.
     """
     if task not in TASK_POINTS:
         raise ValueError(f"task must be 'powder' or 'pour', got {task!r}")
-    kf, timing = _keyframes(task, np.asarray(bowl_xy, dtype=float), np.asarray(start, dtype=float), rng)
+    tool_point = TASK_POINTS[task] if tool_point is None else tool_point
+    kf, timing = _keyframes(task, np.asarray(bowl_xy, dtype=float), np.asarray(start, dtype=float), rng,
+                            np.asarray(tool_point, dtype=float))
     scale = rng.uniform(0.7, 1.3) if duration_scale is None else float(duration_scale)
     # time knots: non-uniform speed (each segment's duration varies on its own) and pauses
     t_knots, u_knots, t = [0.0], [0.0], 0.0

@@ -44,6 +44,7 @@ MIN_IN_BOWL = 0.9
 MAX_ATTEMPTS_PER_DEMO = 40
 PATH_IK = IKConfig(max_iters=40, min_iters=1, pos_tol=2e-4, rot_tol=2e-3, max_step=0.2)
 LIFT_MAX = 0.254  # 10 inches
+DISTRACTOR_TRIES = 30
 
 
 @dataclass(frozen=True)
@@ -115,18 +116,34 @@ def check_motion(kin: KinematicModel, q: np.ndarray, dt: float) -> str:
     return ""
 
 
-def _place_scene(world, task: str, bowl_xy, rng) -> dict:
-    """Place the bowl and draw the 4 distractors; returns name -> base position."""
+def _place_scene(world, task: str, bowl_xy, rng, Q: np.ndarray, collides) -> tuple[dict, str]:
+    """Place the bowl, then draw the 4 distractors one at a time out of the arm's way.
+
+    Each distractor is drawn uniformly in the square (lifted at random) and drawn again, up to
+    ``DISTRACTOR_TRIES`` times, while ``collides(Q)`` reports a collision of the configurations
+    ``Q (S, 7)`` with it (the others are parked below the floor meanwhile): a person does not
+    demonstrate through a vase. Returns name -> base position and "" or why it failed.
+    """
     from sim.world import LANDMARKS
     c, h = np.asarray(L.SQUARE_CENTER_XY), L.SQUARE_HALF
     placements = {"bowl": (float(bowl_xy[0]), float(bowl_xy[1]), L.TABLE_TOP_Z)}
-    for name in LANDMARKS[task][1:]:
-        xy = c + rng.uniform(-h, h, 2)
-        lift = rng.uniform(0.0, 0.3) if task == "powder" else rng.uniform(0.0, LIFT_MAX)
-        placements[name] = (float(xy[0]), float(xy[1]), L.TABLE_TOP_Z + lift)
-    for name, pos in placements.items():
-        world.place_object(name, pos)
-    return placements
+    world.place_object("bowl", placements["bowl"])
+    others = LANDMARKS[task][1:]
+    for k, name in enumerate(others):  # park the distractors out of the scene
+        world.place_object(name, (0.0, 0.0, L.FLOOR_Z - 2.0 - k))
+    if np.any(collides(Q)):
+        return placements, "collision with the bowl or the source container"
+    for name in others:
+        for _ in range(DISTRACTOR_TRIES):
+            xy = c + rng.uniform(-h, h, 2)
+            lift = rng.uniform(0.0, 0.3) if task == "powder" else rng.uniform(0.0, LIFT_MAX)
+            placements[name] = (float(xy[0]), float(xy[1]), L.TABLE_TOP_Z + lift)
+            world.place_object(name, placements[name])
+            if not np.any(collides(Q)):
+                break
+        else:
+            return placements, f"no place for the {name} out of the arm's way"
+    return placements, ""
 
 
 def _contacts(world, particle_ids: set) -> list[str]:
@@ -170,7 +187,7 @@ def replay(world, q: np.ndarray, dt: float, settle: float = 0.3, hold: float = 0
 
 
 def _draw_one(world, kin, fns, task, bowl_xy, tool_point, dt, rng) -> DemoAttempt:
-    path = draw_path(task, bowl_xy, _start_pose(kin, tool_point), dt, rng)
+    path = draw_path(task, bowl_xy, _start_pose(kin, tool_point), dt, rng, tool_point=tool_point)
     lo, hi = kin.lower.numpy(), kin.upper.numpy()
     # redundancy resolved differently per demonstration
     q_rest = L.HOME_Q + rng.normal(0.0, 0.3, 7) + np.r_[0, 0, 0, -0.3, 0, 0, 0]
@@ -183,17 +200,14 @@ def _draw_one(world, kin, fns, task, bowl_xy, tool_point, dt, rng) -> DemoAttemp
     why = check_motion(kin, q, dt)
     if why:
         return DemoAttempt(q, path, {}, why)
-    placements = _place_scene(world, task, bowl_xy, rng)
     stride = max(1, int(round(0.05 / dt)))
     Qc = np.concatenate([q[::stride], q[-1:]])
+    world.place_object("bowl", (float(bowl_xy[0]), float(bowl_xy[1]), L.TABLE_TOP_Z))
     if np.any(fns["static"].batch_collision_fn(Qc)):
-        return DemoAttempt(q, path, placements, "collision with the robot or the table")
-    for _ in range(20):  # a person does not demonstrate through a vase: move the distractors
-        if not np.any(fns["all"].batch_collision_fn(Qc)):
-            break
-        placements = _place_scene(world, task, bowl_xy, rng)
-    else:
-        return DemoAttempt(q, path, placements, "distractors in the way")
+        return DemoAttempt(q, path, {}, "collision with the robot or the table")
+    placements, why = _place_scene(world, task, bowl_xy, rng, Qc, fns["all"].batch_collision_fn)
+    if why:
+        return DemoAttempt(q, path, placements, why)
     in_bowl, hits = replay(world, q, dt)
     if hits:
         return DemoAttempt(q, path, placements, f"replay touched {', '.join(hits)}", in_bowl)
