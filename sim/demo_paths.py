@@ -89,6 +89,7 @@ class DemoPath:
 # table at x = 0.46 has no collision-free solution (the forearm hits the torso); turned 30-60
 # degrees clockwise, most solutions are free. Far away (>= 0.85 m) only the bearing is reachable.
 NEAR_TURN = np.deg2rad(45.0)
+POUR_THROW = 0.08
 NEAR_FAR = (0.5, 0.85)
 
 
@@ -128,6 +129,9 @@ def _keyframes(task: str, bowl_xy, start: np.ndarray, rng, tool_point) -> tuple[
         exit_pt = 0.5 * (np.array(L.PITCHER_SPOUT_LIP) + [0.0, L.PITCHER_RIM_Y, L.PITCHER_AXIS_Z])
         R_t = tool_rotation(yaw, turned["pitch"], turned["roll"])[0]
         work[:2] -= (R_t @ (exit_pt - np.asarray(tool_point)))[:2]
+        # measured in replays: the stream reaches the rim's height POUR_THROW further out along
+        # the spout's horizontal direction (gripper -x when level) than that point
+        work[:2] += POUR_THROW * np.array([-np.sin(yaw), np.cos(yaw)])
         hold, turn_t = rng.uniform(1.2, 2.0), 2.4
     end = start[:3] + np.r_[rng.normal(0, 0.03, 2), rng.uniform(0.0, 0.05)]
     yaw_mid = 0.5 * (yaw0 + yaw)
