@@ -116,3 +116,43 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, args, msg):
     assert r.returncode == 2
     lines = [ln for ln in r.stderr.strip().splitlines() if ln.strip()]
     assert len(lines) == 1 and msg in lines[0]
+
+
+def test_bowl_is_kept_through_rejected_attempts(tmp_path, monkeypatch):
+    """A rejected attempt is redrawn for the same bowl (redrawing the bowl would bias the set)."""
+    import sim.demos as D
+    from sim.demo_paths import draw_path
+
+    seen = []
+
+    def fake(world, kin, fns, task, bowl_xy, tool_point, dt, rng):
+        seen.append(tuple(bowl_xy))
+        path = draw_path(task, bowl_xy, np.r_[0.7, 0.8, 0.0, 0.3], dt, rng)
+        fail = "test rejection" if len(seen) % 3 else ""
+        return D.DemoAttempt(np.tile(L.HOME_Q, (5, 1)), path, {}, fail, 1.0)
+
+    monkeypatch.setattr(D, "_draw_one", fake)
+    D.generate("powder", tmp_path, n=2, seed=0, progress=False)
+    assert len(seen) == 6
+    assert seen[0] == seen[1] == seen[2] and seen[3] == seen[4] == seen[5] and seen[0] != seen[3]
+
+
+def _quadrants(bowls):
+    c = np.asarray(L.SQUARE_CENTER_XY)
+    b = np.asarray(bowls) - c
+    assert np.all(np.abs(b) <= L.SQUARE_HALF + 1e-9)
+    return {(bool(x > 0), bool(y > 0)) for x, y in b}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", ["powder", "pour"])
+def test_eleven_demonstrations_cover_the_square(tmp_path, kin, task):
+    """11 demonstrations (each kept only after a successful replay) put bowls in >= 3 quadrants."""
+    kept = []
+    generate(task, tmp_path, n=11, seed=0, progress=False, keep_attempts=kept)
+    truth = json.loads((tmp_path / "ground_truth.json").read_text())
+    assert len(_quadrants(truth["bowl_xy"])) >= 3
+    assert all(a.in_bowl >= MIN_IN_BOWL for a in kept)
+    vel = kin.velocity.numpy()
+    dt = kept[0].path.t[1] - kept[0].path.t[0]
+    assert all(np.all(np.abs(np.diff(a.q, axis=0)) <= vel * dt + 1e-12) for a in kept)
