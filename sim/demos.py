@@ -1,8 +1,10 @@
 """The kinesthetic demonstrator: synthetic human-like demonstrations of the two tasks (Sec. VI).
 
 Per demonstration: the bowl is placed uniformly at random in the 30-inch square of
-``sim.layout`` and 4 distractor landmarks at random (powder: markers up to 0.3 m above the
-table; pour: scissors, spoon, vase, paper towels lifted up to 10 inches); a hidden task point
+``sim.layout`` and 4 distractor landmarks at random in it (powder: markers up to 0.3 m above
+the table; pour: scissors, spoon, vase, paper towels lifted up to 10 inches), each drawn again
+while the demonstrated motion would hit it (a person does not demonstrate through a vase); a
+hidden task point
 on the tool (``sim.demo_paths.TASK_POINTS`` or ``task_point``) follows a random path relative
 to the bowl (``sim.demo_paths.draw_path``); the arm follows it by IK (``lfd.ik``) seeded from
 the previous sample, with a per-demonstration null-space posture. A demonstration is kept
