@@ -187,6 +187,19 @@ class Roadmap:
                         self._add_edge(i, j)
         return ids
 
+    def add_edges(self, pairs) -> int:
+        """Add edges ``pairs: (p, 2)`` of vertex ids besides the k-nearest ones (e.g. between
+        consecutive configurations of a sampled task execution). Extra edges only add paths, so
+        the PRM* guarantee is kept. Returns how many were new."""
+        added = 0
+        for i, j in np.asarray(pairs, dtype=int).reshape(-1, 2).tolist():
+            if not (0 <= i < self._n and 0 <= j < self._n):
+                raise ValueError(f"Expected vertex ids in [0, {self._n}), got ({i}, {j})")
+            if i != j and not self.graph.has_edge(i, j):
+                self._add_edge(i, j)
+                added += 1
+        return added
+
     def _add_edge(self, i: int, j: int) -> None:
         if self.settings.lazy:
             self.graph.add_edge(i, j, free=None, eid=self._n_eids)

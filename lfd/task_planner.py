@@ -8,10 +8,11 @@ the model wants the robot for the current landmarks, and re-plans lazily when la
     planner.update_landmarks(names, T_world_landmarks)   # (Z,) names, (Z, 4, 4) poses
     result = planner.plan(q_current, t_current=0)        # lfd.planner.PlanResult
 
-Biased sampling (in the spirit of the paper's [2]): for each time step t, feature vectors are drawn
-from the learned Gaussian ``N(mu_t, Sigma_t)``; the joint part seeds IK and the task part (the tool
-point relative to the virtual landmark) is mapped into the world through the current ``K_virt``;
-IK then places the tool point there, pulled towards the sampled joints in the null space. The
+Biased sampling (in the spirit of the paper's [2]): feature vectors are drawn from the learned
+per-step Gaussians ``N(mu_t, Sigma_t)`` as chains through the time steps (see
+``biased_configurations``); the task part (the tool point relative to the virtual landmark) is
+mapped into the world through the current ``K_virt`` and IK places the tool point there, pulled
+towards the sampled joints in the null space. The
 solutions are mixed with uniform samples (``bias_fraction``). When the task-relevant landmarks move
 by more than ``regrow_distance`` from every set the roadmap was grown for, new biased samples are
 added to the same roadmap; it is never rebuilt.
@@ -34,7 +35,7 @@ from lfd.model import TaskModel
 from lfd.planner import ClosedLoopPlanner, PlannerSettings, PlanResult
 from lfd.roadmap import Roadmap, RoadmapSettings
 
-__all__ = ["TaskPlannerSettings", "TaskPlanner", "biased_configurations"]
+__all__ = ["TaskPlannerSettings", "TaskPlanner", "biased_configurations", "chain_edges"]
 
 
 @dataclass(frozen=True)
@@ -48,7 +49,7 @@ class TaskPlannerSettings:
     n_vertices: int = 1000
     bias_fraction: float = 0.6
     regrow_distance: float = 0.10
-    regrow_vertices: int = 200
+    regrow_vertices: int = 400
     max_vertices: int | None = None
     fk_cache_rows: int = 400_000
     seed: int = 0
@@ -66,29 +67,55 @@ class TaskPlannerSettings:
 
 
 def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
-                          generator: torch.Generator) -> np.ndarray:
-    """``n`` configurations ``(m <= n, d)`` where the model wants the robot for ``landmarks``.
+                          generator: torch.Generator, step_jitter: float = 0.3):
+    """About ``n`` configurations where the model wants the robot for ``landmarks``.
 
-    ``landmarks``: ``(Z, 4, 4)`` kept landmarks in model order. Samples are spread evenly over the
-    time steps; IK failures are dropped.
+    ``landmarks``: ``(Z, 4, 4)`` kept landmarks in model order. The samples come as *chains*, one
+    sampled task execution each: a chain draws one standard-normal vector ``z`` (plus
+    ``step_jitter`` of fresh noise per step) and takes ``f_t = mu_t + sigma_t z`` at every time
+    step t, so that consecutive samples of a chain are alike, as consecutive moments of a
+    demonstration are. The joint part of ``f_t`` is the null-space posture and the task part,
+    mapped into the world through the current ``K_virt``, the target of the tool point; IK solves
+    the chain's steps in order, each from the previous step's solution. Consecutive
+    configurations of a chain are therefore near each other in joint space and the roadmap gets
+    connected corridors through the task, not scattered islands.
+
+    Returns ``(Q (C*T, d), valid (C*T,) bool, T)``, chain-major: sample ``c * T + t`` is chain
+    c's configuration at step t; ``valid`` marks IK successes.
     """
     kin = model.kin
     T, F = model.mu.shape
     d = F - 3
-    per_step = max(1, -(-n // T))
+    chains = max(1, -(-n // T))
     sigma = torch.linalg.inv(model.sigma_inv)  # (T, F, F) lower Cholesky factors of Sigma_t
-    z = torch.randn(T, per_step, F, generator=generator, dtype=model.dtype).to(model.device)
-    f = model.mu[:, None, :] + torch.einsum("tij,tsj->tsi", sigma, z)  # (T, S, F)
-    f = f.reshape(-1, F)[:n]
-    q_seed = torch.maximum(torch.minimum(f[:, :d], kin.upper), kin.lower)  # (n, d)
+    z = torch.randn(chains, 1, F, generator=generator, dtype=model.dtype)
+    z = (z + step_jitter * torch.randn(chains, T, F, generator=generator, dtype=model.dtype)).to(model.device)
+    f = model.mu[None] + torch.einsum("tij,ctj->cti", sigma, z)  # (C, T, F)
+    q_rest = torch.maximum(torch.minimum(f[..., :d], kin.upper), kin.lower)  # (C, T, d)
     T_world_virt = torch.linalg.inv(model.K_virt_inv(landmarks))  # (4, 4)
-    p_world = f[:, d:] @ T_world_virt[:3, :3].T + T_world_virt[:3, 3]  # (n, 3)
-    T_target = torch.eye(4, dtype=model.dtype, device=model.device).repeat(len(f), 1, 1)
-    T_target[:, :3, 3] = p_world
+    p_world = f[..., d:] @ T_world_virt[:3, :3].T + T_world_virt[:3, 3]  # (C, T, 3)
     weights = torch.tensor([1, 1, 1, 0, 0, 0], dtype=model.dtype, device=model.device)
-    res = solve_ik(kin, T_target, q_seed, p_ee_tool=model.tool, weights=weights, q_rest=q_seed,
-                   config=IKConfig(max_iters=60, pos_tol=5e-3))
-    return res.q[res.success].detach().cpu().numpy()
+    T_target = torch.eye(4, dtype=model.dtype, device=model.device).repeat(chains, 1, 1)
+    out, ok, q_prev = [], [], None
+    for t in range(T):
+        T_target[:, :3, 3] = p_world[:, t]
+        seed = q_rest[:, t] if q_prev is None else q_prev
+        res = solve_ik(kin, T_target, seed, p_ee_tool=model.tool, weights=weights, q_rest=q_rest[:, t],
+                       config=IKConfig(max_iters=40 if q_prev is None else 20, min_iters=5, pos_tol=5e-3))
+        q_prev = res.q
+        out.append(res.q)
+        ok.append(res.success)
+    Q = torch.stack(out, dim=1).reshape(chains * T, d).detach().cpu().numpy()  # (C*T, d), chain-major
+    valid = torch.stack(ok, dim=1).reshape(-1).cpu().numpy()
+    return Q, valid, T
+
+
+def chain_edges(valid: np.ndarray, steps_per_chain: int) -> np.ndarray:
+    """``(p, 2)`` index pairs of consecutive valid samples within each chain (chain-major order)."""
+    idx = np.flatnonzero(valid)
+    chain = idx // steps_per_chain
+    same = chain[1:] == chain[:-1]
+    return np.stack([idx[:-1][same], idx[1:][same]], axis=1)
 
 
 class _FKCache:
@@ -196,17 +223,27 @@ class TaskPlanner:
             return model.step_nll(Q, fk(Q), landmarks)
         return step_nll
 
-    def _biased(self, n: int) -> np.ndarray:
-        return biased_configurations(self.model, self._landmarks, n, self._gen)
+    def _add_biased(self, n: int) -> int:
+        """Add about ``n`` biased vertices (collision-free ones) and their chain edges."""
+        Q, valid, steps = biased_configurations(self.model, self._landmarks, n, self._gen)
+        free = valid.copy()
+        free[valid] = ~self.roadmap.in_collision(Q[valid])
+        ids = np.full(len(Q), -1)
+        ids[free] = self.roadmap.add_vertices(Q[free], check=False)
+        pairs = chain_edges(free, steps)
+        self.roadmap.add_edges(ids[pairs])
+        self.stats["vertices_added"] += int(free.sum())
+        return int(free.sum())
 
     def _build(self) -> None:
         s = self.settings
         n_bias = int(round(s.bias_fraction * s.n_vertices))
-        B = self._biased(n_bias) if n_bias else np.empty((0, self.kin.dof))
-        self.roadmap = Roadmap.build(self.sample_fn, s.n_vertices, self.collision_fn, self.segment_fn,
-                                     biased_samples=B, batch_collision_fn=self.batch_collision_fn,
+        self.roadmap = Roadmap.build(self.sample_fn, max(2, s.n_vertices - n_bias), self.collision_fn,
+                                     self.segment_fn, batch_collision_fn=self.batch_collision_fn,
                                      settings=s.roadmap)
         self.stats["vertices_added"] = self.roadmap.n
+        if n_bias:
+            self._add_biased(n_bias)
         self._grown_for.append(self._landmarks[:, :3, 3].cpu().numpy())
         # step_nll is in Eq. 3 units (log|Sigma| + Mahalanobis^2 = 2 x nll + const), so the
         # transition term must be -2 log p(t'|t): hand the planner 2 log p as its "log_trans".
@@ -222,11 +259,7 @@ class TaskPlanner:
         if (min(np.abs(pos - g).max() for g in self._grown_for) <= s.regrow_distance
                 or min(room, s.regrow_vertices) <= 0):
             return
-        B = self._biased(min(room, s.regrow_vertices))
-        if len(B):
-            B = B[~self.roadmap.in_collision(B)]
-            self.roadmap.add_vertices(B, check=False)
-            self.stats["vertices_added"] += len(B)
+        self._add_biased(min(room, s.regrow_vertices))
         self.stats["regrows"] += 1
         self._grown_for.append(pos)
         if len(self._grown_for) > 64:  # bounded: forget the oldest places

@@ -119,7 +119,8 @@ def _keyframes(task: str, bowl_xy, start: np.ndarray, rng, tool_point) -> tuple[
     if task == "powder":
         work = np.array([bx, by, top + L.BOWL_HEIGHT + rng.uniform(0.04, 0.07)]) + np.r_[rng.normal(0, 0.012, 2), 0]
         turned = dict(roll=np.deg2rad(120 + rng.uniform(-10, 10)), pitch=tilt)
-        hold, turn_t = rng.uniform(0.4, 0.9), 2.0
+        # a person flips the spoon over briskly and holds it there while the powder falls
+        hold, turn_t = rng.uniform(1.0, 1.8), 1.3
     else:
         # the cup hangs beside and 0.1 m below the spout: the task point well above the rim
         work = np.array([bx, by, top + L.BOWL_HEIGHT + rng.uniform(0.12, 0.15)]) + np.r_[rng.normal(0, 0.01, 2), 0]

@@ -85,7 +85,7 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, seed: 
 
 
 def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roadmap_size: int,
-            video_path: str | None = None) -> dict:
+            video_path: str | None = None, with_path: bool = False) -> dict:
     """One scenario with one variant, in this process. Returns a JSON-ready dict."""
     import torch
 
@@ -111,7 +111,7 @@ def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roa
         if video_path and frames:
             import imageio.v2 as imageio
             imageio.mimsave(video_path, frames[::2], duration=0.2, loop=0)
-    out = res.to_dict()
+    out = res.to_dict(with_path=with_path)
     out.update(scenario=scenario.seed, variant=variant.name, wall_s=time.perf_counter() - tic,
                roadmap_vertices=planner.roadmap.n if planner.roadmap is not None else 0)
     return out

@@ -36,7 +36,7 @@ __all__ = ["Scenario", "draw_scenario", "draw_scenarios", "MIN_BOWL_SOURCE", "CL
 MIN_BOWL_SOURCE = 0.30       # m, bowl centre to source container centre
 MIN_MOVE = 0.20              # m, how far the bowl moves in the powder closed-loop test
 CLEARANCE = 0.10             # m, free gap between an obstacle's and the bowl's / source's outline
-LAMP_BOTTOM_RANGE = (0.28, 0.42)  # m above the table top
+LAMP_BOTTOM_RANGE = (0.42, 0.55)  # m above the table top: at the height of the elbow and upper arm
 MAX_TRIES = 10_000
 
 
