@@ -1,0 +1,120 @@
+"""End to end: demonstrations -> learning -> planning -> closed-loop execution in PyBullet.
+
+One small pipeline per module (5 powder demonstrations, 2 restarts, a 500-vertex roadmap).
+Fast (in ``make test``): the pipeline runs, plans are found, every planned segment passes the
+collision checker, a moved bowl triggers a re-plan. Slow (``make test-all``): the runs succeed
+by the paper's criterion; an obstacle across the learned path is avoided by the planner but hit
+without obstacle avoidance. These slow ones currently FAIL: the executed dump turns the spoon
+~75 degrees where the demonstrations turn it ~120, and the powder stays in the spoon (README).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from lfd.demos import load_demos
+from lfd.kinematics import KinematicModel
+from lfd.learn import FitConfig, fit
+from sim import layout as L
+from sim.evaluate import VARIANTS, run_one
+from sim.scenarios import Scenario
+
+ROADMAP = 500
+FAR = {"paper_towels": (2.5, 2.5), "lamp_shade": (2.5, -2.5, 2.0)}  # out of the scene
+LEARNED = {v.name: v for v in VARIANTS}["learned+learned"]
+NO_OA = {v.name: v for v in VARIANTS}["no-obstacle-avoidance"]
+
+
+@pytest.fixture(scope="module")
+def model_dir(tmp_path_factory):
+    from sim.demos import generate
+    demos = tmp_path_factory.mktemp("demos")
+    generate("powder", demos, n=5, seed=21, progress=False)
+    ds = load_demos(demos)
+    kin = KinematicModel.from_spec(ds.robot)
+    res = fit(ds, kin, FitConfig(restarts=2, seed=0))
+    out = tmp_path_factory.mktemp("model")
+    res.model.save(out)
+    return out
+
+
+def _scenario(bowl, obstacles=None, bowl_after=None, seed=0) -> Scenario:
+    placements = {"bowl": tuple(bowl), **FAR, **(obstacles or {})}
+    for i, xy in enumerate(((0.50, 0.0), (1.15, 0.0), (1.15, 0.70), (0.50, 0.55)), start=1):
+        placements[f"marker_{i}"] = (*xy, L.TABLE_TOP_Z + L.MARKER_HEIGHT_ABOVE_TABLE)
+    return Scenario(task="powder", seed=seed, placements=placements, bowl_after=bowl_after,
+                    move_at_step=6 if bowl_after is not None else None)
+
+
+BOWL = (L.SQUARE_CENTER_XY[0] + 0.10, L.SQUARE_CENTER_XY[1] - 0.10)
+
+
+@pytest.fixture(scope="module")
+def free_run(model_dir):
+    return run_one("powder", _scenario(BOWL), LEARNED, str(model_dir), ROADMAP, with_path=True)
+
+
+def test_pipeline_plans_and_replans(model_dir, free_run):
+    """Fast: the whole pipeline runs and the closed loop reacts to a moved bowl."""
+    assert free_run["plan_statuses"][0] == "ok", free_run["reason"]
+    assert len(free_run["task_point_path"]) > 10
+    after = (BOWL[0] - 0.25, BOWL[1] + 0.2)
+    r = run_one("powder", _scenario(BOWL, bowl_after=after), LEARNED, str(model_dir), ROADMAP)
+    assert r["n_replans"] >= 1 and len(r["replan_ms"]) == r["n_replans"]
+    assert all(s == "ok" for s in r["plan_statuses"]), r["plan_statuses"]
+
+
+def test_plans_pass_the_collision_checker(model_dir):
+    """Every segment of a plan in an obstacle scene is free by the simulator's own checker."""
+    from lfd.model import TaskModel
+    from lfd.task_planner import TaskPlanner, TaskPlannerSettings
+    from sim.collision import make_collision_fns
+    from sim.world import World
+
+    model = TaskModel.load(model_dir)
+    model.kin = KinematicModel.from_spec(model.robot)
+    roll = (0.5 * (BOWL[0] + L.SOURCE_DEFAULT_XY[0]), 0.5 * (BOWL[1] + L.SOURCE_DEFAULT_XY[1]))
+    with World("powder", scenario=_scenario(BOWL, {"paper_towels": roll}).placements, n_particles=0) as w:
+        fns = make_collision_fns(w)
+        planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn, batch_collision_fn=fns.batch_collision_fn,
+                              settings=TaskPlannerSettings(n_vertices=ROADMAP, seed=1))
+        planner.update_landmarks(*w.sensed_landmarks())
+        res = planner.plan(L.HOME_Q, 0)
+        assert res.ok, res.message
+        Q = res.configurations
+        assert not any(fns.segment_fn(a, b) for a, b in zip(Q[:-1], Q[1:]))
+        assert np.all(np.diff(res.time_steps) >= 0) and res.time_steps[-1] == model.time_steps - 1
+
+
+@pytest.mark.slow
+def test_plain_run_succeeds(free_run):
+    assert free_run["success"], free_run["reason"]
+    assert free_run["fraction_in_bowl"] >= 0.8
+    assert free_run["contacts"] == []
+
+
+@pytest.mark.slow
+def test_obstacle_across_the_learned_path(model_dir, free_run):
+    path = np.asarray(free_run["task_point_path"])[:, :2]
+    bowl, source = np.asarray(BOWL), np.asarray(L.SOURCE_DEFAULT_XY)
+    # the first point of the carrying motion that is 0.2-0.3 m from the bowl and clear of the source
+    d_bowl = np.linalg.norm(path - bowl, axis=1)
+    d_src = np.linalg.norm(path - source, axis=1)
+    ok = np.flatnonzero((d_bowl > 0.2) & (d_bowl < 0.3) & (d_src > 0.15))
+    assert len(ok), "the learned path never passes 0.2-0.3 m from the bowl"
+    roll = tuple(path[ok[0]])
+    sc = _scenario(BOWL, {"paper_towels": roll})
+    blind = run_one("powder", sc, NO_OA, str(model_dir), ROADMAP)
+    assert not blind["success"] and any(c["body"] == "paper_towels" for c in blind["contacts"]), blind["reason"]
+    seeing = run_one("powder", sc, LEARNED, str(model_dir), ROADMAP)
+    assert seeing["success"], seeing["reason"]
+
+
+@pytest.mark.slow
+def test_moved_bowl_replans_and_succeeds(model_dir):
+    after = (BOWL[0] - 0.25, BOWL[1] + 0.2)
+    r = run_one("powder", _scenario(BOWL, bowl_after=after), LEARNED, str(model_dir), ROADMAP)
+    assert r["n_replans"] >= 1 and len(r["replan_ms"]) == r["n_replans"]
+    assert r["success"], r["reason"]
