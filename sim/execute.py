@@ -184,7 +184,8 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         seg_t += L.SIM_DT
         a = min(1.0, seg_t / dur) if dur > 0 else 1.0
         q_cmd = q0 + a * (q1 - q0)
-        world.command_q(q_cmd, force=s.force)
+        qdot = (q1 - q0) / dur if dur > 0 and a < 1.0 else np.zeros_like(q0)
+        world.command_q(q_cmd, force=s.force, qdot=qdot)
         world.step(1)
         step += 1
         contacts.poll(step * L.SIM_DT)

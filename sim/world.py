@@ -188,11 +188,13 @@ class World:
         states = p.getJointStates(self.robot, self.arm_joints, physicsClientId=self.client)
         return np.array([s[0] for s in states])
 
-    def command_q(self, q, force: float = 200.0) -> None:
-        """Position-control targets ``q (7,)`` for the arm, reached by ``step``."""
+    def command_q(self, q, force: float = 200.0, qdot=None) -> None:
+        """Position-control targets ``q (7,)`` for the arm, reached by ``step``; ``qdot (7,)``, the
+        planned joint velocities, is fed forward so the arm does not trail a moving target."""
         q = self._check_q(q)
+        kw = {} if qdot is None else {"targetVelocities": self._check_q(qdot).tolist()}
         p.setJointMotorControlArray(self.robot, self.arm_joints, p.POSITION_CONTROL, targetPositions=q.tolist(),
-                                    forces=[force] * len(q), physicsClientId=self.client)
+                                    forces=[force] * len(q), physicsClientId=self.client, **kw)
 
     def step(self, n: int = 1) -> None:
         """Advance physics ``n`` steps of ``layout.SIM_DT``."""
