@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from lfd.demos import DemoFormatError, Demonstration, DemoSet, load_demos, save_demos
 from lfd.robots import BAXTER_LEFT
 from lfd.tasks import POWDER
+from helpers import rewrite_npz
 
 ROOT = Path(__file__).resolve().parent.parent
 NAMES = ("bowl", "marker_1", "marker_2")
@@ -44,17 +45,7 @@ def good_dir(tmp_path):
     return tmp_path
 
 
-def _rewrite(path: Path, **changes):
-    """Rewrite one npz with keys changed (None deletes the key)."""
-    with np.load(path, allow_pickle=False) as z:
-        data = {k: z[k] for k in z.files}
-    for k, v in changes.items():
-        if v is None:
-            data.pop(k, None)
-        else:
-            data[k] = v
-    path.unlink()
-    np.savez(path, **data)
+_rewrite = rewrite_npz
 
 
 def test_round_trip(good_dir, kin):

@@ -11,6 +11,7 @@ import torch
 from lfd.planner import ClosedLoopPlanner, PlannerSettings
 from lfd.roadmap import Roadmap, k_prm_star
 from lfd.stcost import CostSettings, SpatiotemporalCosts
+from helpers import box_world
 
 # ---------------------------------------------------------------- toy world (d = 2)
 BOX_LO, BOX_HI = np.array([0.15, 0.35]), np.array([0.45, 0.9])  # cuts the arc of the means
@@ -18,14 +19,7 @@ DT, T2 = 0.1, 8
 VMAX2 = np.array([1.0, 2.0])
 
 
-def in_box(q):
-    return bool(np.all(q >= BOX_LO) and np.all(q <= BOX_HI))
-
-
-def segment_hits_box(q1, q2, step=0.005):
-    m = max(2, int(np.ceil(np.linalg.norm(q2 - q1) / step)) + 1)
-    P = q1 + (q2 - q1) * np.linspace(0.0, 1.0, m)[:, None]
-    return bool(np.any(np.all((P >= BOX_LO) & (P <= BOX_HI), axis=1)))
+in_box, segment_hits_box = box_world(BOX_LO, BOX_HI)
 
 
 def arc_means(T, shift=0.0):

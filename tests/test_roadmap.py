@@ -6,18 +6,12 @@ import numpy as np
 import pytest
 
 from lfd.roadmap import Roadmap, RoadmapSettings, ik_biased_samples, k_prm_star, mixed_samples
+from helpers import box_world
 
 BOX_LO, BOX_HI = np.array([-0.2, -0.6]), np.array([0.2, 0.6])
 
 
-def in_box(q):
-    return bool(np.all(q >= BOX_LO) and np.all(q <= BOX_HI))
-
-
-def segment_hits_box(q1, q2, step=0.005):
-    m = max(2, int(np.ceil(np.linalg.norm(q2 - q1) / step)) + 1)
-    P = q1 + (q2 - q1) * np.linspace(0.0, 1.0, m)[:, None]
-    return bool(np.any(np.all((P >= BOX_LO) & (P <= BOX_HI), axis=1)))
+in_box, segment_hits_box = box_world(BOX_LO, BOX_HI)
 
 
 def uniform(rng, d=2):

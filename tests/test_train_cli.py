@@ -23,6 +23,7 @@ from lfd.checkpoint import FitProgress, save_checkpoint
 from lfd.demos import Demonstration, DemoSet, save_demonstration, save_demos
 from lfd.robots import BAXTER_LEFT
 from lfd.tasks import POWDER
+from helpers import rewrite_npz
 
 ROOT = Path(__file__).resolve().parent.parent
 NAMES = ("bowl", "marker_1", "marker_2")
@@ -42,17 +43,7 @@ def _demoset(n=2, samples=30, seed=0) -> DemoSet:
                    robot=BAXTER_LEFT, task=POWDER)
 
 
-def _rewrite(path: Path, **changes):
-    """Rewrite one npz with keys changed (None deletes the key)."""
-    with np.load(path, allow_pickle=False) as z:
-        data = {k: z[k] for k in z.files}
-    for k, v in changes.items():
-        if v is None:
-            data.pop(k, None)
-        else:
-            data[k] = v
-    path.unlink()
-    np.savez(path, **data)
+_rewrite = rewrite_npz
 
 
 def _not_rigid():

@@ -1,0 +1,36 @@
+"""Small helpers shared by several test modules (imported as ``helpers``; tests/ is on sys.path)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def rewrite_npz(path: Path, **changes) -> None:
+    """Rewrite one ``.npz`` with keys changed (``None`` deletes the key)."""
+    with np.load(path, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    for k, v in changes.items():
+        if v is None:
+            data.pop(k, None)
+        else:
+            data[k] = v
+    path.unlink()
+    np.savez(path, **data)
+
+
+def box_world(lo, hi, step: float = 0.005):
+    """A toy world with one axis-aligned box obstacle ``[lo, hi]``: ``(in_box, segment_hits_box)``,
+    the segment checked every ``step``."""
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+
+    def in_box(q) -> bool:
+        return bool(np.all(q >= lo) and np.all(q <= hi))
+
+    def segment_hits_box(q1, q2) -> bool:
+        m = max(2, int(np.ceil(np.linalg.norm(q2 - q1) / step)) + 1)
+        P = q1 + (q2 - q1) * np.linspace(0.0, 1.0, m)[:, None]
+        return bool(np.any(np.all((P >= lo) & (P <= hi), axis=1)))
+
+    return in_box, segment_hits_box
