@@ -34,7 +34,7 @@ def plot_plan_features(model, configurations: np.ndarray, time_steps: np.ndarray
         ax.fill_between(t, mu[:, k] - 2 * std[:, k], mu[:, k] + 2 * std[:, k], alpha=0.25,
                         label="learned mean ± 2σ")
         ax.plot(t, mu[:, k], "-", lw=1.5)
-        ax.plot(np.asarray(time_steps) + np.linspace(-0.3, 0.3, len(time_steps)) * 0, f[:, k], "o-", ms=3,
+        ax.plot(np.asarray(time_steps), f[:, k], "o-", ms=3,
                 lw=0.8, label="plan")
         ax.set_ylabel(f"tool point {name} (m)\nin virtual landmark")
     axes[0].legend(loc="best", fontsize=8)
