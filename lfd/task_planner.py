@@ -24,7 +24,7 @@ re-plans, only the landmarks change.
 
 from __future__ import annotations
 
-from collections import OrderedDict
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -269,8 +269,6 @@ class TaskPlanner:
     def plan(self, q_current, t_current: int = 0, q_goal=None) -> PlanResult:
         """Best plan from ``(q_current, t_current)`` to the last time step (see ``ClosedLoopPlanner``)."""
         if self.planner is None:
-            import math
-            import time
             msg = self._missing or "no landmarks yet: call update_landmarks first"
             d = self.kin.dof
             return PlanResult(status="missing_landmark", configurations=np.empty((0, d)),

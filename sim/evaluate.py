@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import subprocess
 import sys
 import time
@@ -196,8 +195,6 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
                 if bar:
                     bar.update(1)
         else:
-            ctx_env = dict(os.environ, OMP_NUM_THREADS="1")
-            os.environ.update(ctx_env)
             with ProcessPoolExecutor(max_workers=settings.workers) as pool:
                 futures = [pool.submit(run_one, *job) for job in jobs]
                 for f in as_completed(futures):
