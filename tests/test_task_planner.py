@@ -1,0 +1,89 @@
+"""TaskPlanner glue, FK cache, chain edges, and the executor's plan timing (no simulator needed)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lfd.kinematics import KinematicModel
+from lfd.model import TaskModel
+from lfd.robots import BAXTER_LEFT
+from lfd.task_planner import TaskPlanner, TaskPlannerSettings, _FKCache, chain_edges
+
+
+@pytest.fixture(scope="module")
+def kin():
+    return KinematicModel.from_spec(dtype=torch.float64)
+
+
+def _model(kin, T=6):
+    """A hand-made model: the tool point rides a line towards the landmark over T steps."""
+    g = torch.Generator().manual_seed(0)
+    q_mid = (kin.lower + kin.upper) / 2
+    q_mid = torch.where(torch.isfinite(q_mid), q_mid, torch.zeros_like(q_mid))
+    mu = torch.zeros(T, 10, dtype=torch.float64)
+    mu[:, :7] = q_mid + 0.05 * torch.randn(T, 7, generator=g, dtype=torch.float64)
+    mu[:, 7:] = torch.linspace(0.4, 0.1, T, dtype=torch.float64)[:, None] * torch.tensor([1.0, 0.0, 1.0])
+    sigma_inv = torch.diag_embed(torch.cat([torch.full((7,), 1 / 0.8), torch.full((3,), 1 / 0.2)])
+                                 ).to(torch.float64).repeat(T, 1, 1)
+    log_trans = torch.log(torch.tensor([0.5, 0.4, 0.1], dtype=torch.float64)).repeat(T, 1)
+    log_trans[-1] = torch.tensor([0.0, -math.inf, -math.inf])
+    log_trans[-2, 2] = -math.inf
+    return TaskModel(torch.tensor([0.0, 0.0, 0.1], dtype=torch.float64), torch.ones(1, dtype=torch.float64),
+                     mu, sigma_inv, log_trans, ["bowl"], BAXTER_LEFT, kin=kin)
+
+
+def test_fk_cache_equals_fk(kin):
+    cache = _FKCache(kin, max_rows=500)
+    Q = kin.sample_uniform(200, generator=torch.Generator().manual_seed(1))
+    mixed = torch.cat([Q[:50], kin.sample_uniform(30), Q[10:20]])
+    torch.testing.assert_close(cache(Q), kin.fk(Q))
+    torch.testing.assert_close(cache(mixed), kin.fk(mixed))
+    assert cache.hits >= 60
+    for _ in range(5):  # bounded: past max_rows it starts afresh
+        cache(kin.sample_uniform(200))
+    assert cache.rows <= 500
+
+
+def test_chain_edges_join_consecutive_valid_samples():
+    valid = np.array([1, 1, 0, 1, 1, 1, 0, 0], dtype=bool)  # two chains of 4 steps
+    pairs = chain_edges(valid, 4)
+    assert pairs.tolist() == [[0, 1], [1, 3], [4, 5]]
+
+
+def test_task_planner_plans_and_reports_missing_landmark(kin):
+    model = _model(kin)
+    free = lambda q: False  # noqa: E731
+    planner = TaskPlanner(model, free, lambda a, b: False,
+                          settings=TaskPlannerSettings(n_vertices=120, seed=0))
+    assert planner.plan(np.zeros(7), 0).status == "missing_landmark"
+    bowl = np.eye(4)[None]
+    bowl[0, :3, 3] = [0.7, 0.4, -0.1]
+    planner.update_landmarks(["marker", "bowl"], np.concatenate([np.eye(4)[None], bowl]))
+    q0 = model.mu[0, :7].numpy()
+    res = planner.plan(q0, 0)
+    assert res.ok, res.message
+    assert res.time_steps[0] == 0 and res.time_steps[-1] == model.time_steps - 1
+    assert np.all(np.diff(res.time_steps) >= 0)
+    planner.update_landmarks(["marker"], np.eye(4)[None])  # the bowl is no longer sensed
+    assert planner.plan(q0, 0).status == "missing_landmark"
+
+
+def test_plan_segments_respect_velocity_limits_and_pace():
+    from sim.execute import expected_sojourn, plan_segments
+    vmax = np.array([1.5] * 4 + [4.0] * 3)
+    Q = np.array([np.zeros(7), np.full(7, 0.3), np.full(7, 0.3), np.full(7, 0.9)])
+    steps = np.array([0, 0, 1, 1])
+    log_trans = np.log(np.array([[0.9, 0.1, 1e-9], [0.5, 0.5, 1e-9]]))
+    soj = expected_sojourn(log_trans, (0, 1, 2), dt=0.1)
+    assert soj == pytest.approx([1.0, 0.2])
+    segs = plan_segments(Q, steps, vmax, dt=0.1, speed=0.5, sojourn=soj)
+    move0, wait, move1 = segs
+    assert move0[2] == pytest.approx(0.3 / (0.5 * 1.5))            # slowest joint at half its limit
+    assert wait[2] == pytest.approx(1.0 - move0[2]) and wait[3] == 0  # step 0 lasts its expected time
+    assert move1[2] == pytest.approx(0.6 / 0.75) and move1[3] == 1
+    no_pace = plan_segments(Q, steps, vmax, dt=0.1, speed=0.5)
+    assert no_pace[1][2] == pytest.approx(0.1)                       # one sampling interval
