@@ -7,7 +7,6 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
@@ -66,7 +65,6 @@ def main(argv=None) -> int:
         print(f"results: {out / 'results.json'}")
         return 0
 
-    from lfd.model import TaskModel  # noqa: F401  (ModelFormatError is reported by run_main)
     from sim.evaluate import plan_scenario
     from sim.scenarios import draw_scenario
     cfg_path = args.model / "config.json"

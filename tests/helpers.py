@@ -34,3 +34,23 @@ def box_world(lo, hi, step: float = 0.005):
         return bool(np.any(np.all((P >= lo) & (P <= hi), axis=1)))
 
     return in_box, segment_hits_box
+
+
+LANDMARK_NAMES = ("bowl", "marker_1", "marker_2")
+
+
+def small_demoset(n: int = 2, samples: int = 30, seed: int = 0, ground_truth=None):
+    """``n`` small valid demonstrations (random joints near a nominal pose, 3 landmarks)."""
+    from lfd.demos import Demonstration, DemoSet
+    from lfd.robots import BAXTER_LEFT
+    from lfd.tasks import POWDER
+
+    rng = np.random.default_rng(seed)
+    demos = []
+    for i in range(n):
+        poses = np.tile(np.eye(4), (len(LANDMARK_NAMES), 1, 1))
+        poses[:, :3, 3] = rng.uniform(-0.5, 0.5, (len(LANDMARK_NAMES), 3))
+        q = np.array([0.0, -0.5, 0.0, 1.2, 0.0, 0.5, 0.0]) + 0.1 * rng.standard_normal((samples + i, 7))
+        demos.append(Demonstration(q=q, dt=0.1, landmarks=poses, name=f"demo_{i:03d}"))
+    return DemoSet(demos=tuple(demos), joint_names=BAXTER_LEFT.joint_names, landmark_names=LANDMARK_NAMES,
+                   robot=BAXTER_LEFT, task=POWDER, ground_truth=ground_truth)

@@ -312,6 +312,7 @@ def test_caches_stay_bounded_over_many_replans(toy):
         assert len(c._ecost) == toy.n_edge_ids and len(c._out) <= toy.n + 2
         assert len(c._temp) <= 2 and len(c._tedge) <= 2 * toy.k(toy.n + 1) + 1
     assert toy.n == 180
+    assert toy.graph.number_of_edges() == n_edges  # start points never become roadmap edges
 
 
 def test_roadmap_growth_between_plans(toy):

@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 
 from lfd.checkpoint import FitProgress, save_checkpoint
-from lfd.demos import Demonstration, DemoSet, save_demonstration, save_demos
+from lfd.demos import DemoSet, save_demonstration, save_demos
 from lfd.robots import BAXTER_LEFT
 from lfd.tasks import POWDER
-from helpers import rewrite_npz
+from helpers import rewrite_npz, small_demoset
 
 ROOT = Path(__file__).resolve().parent.parent
 NAMES = ("bowl", "marker_1", "marker_2")
@@ -31,16 +31,7 @@ RUN = ["--restarts", "1", "--time-steps", "4"]  # where a run could start, it wo
 
 
 def _demoset(n=2, samples=30, seed=0) -> DemoSet:
-    """Two small, valid demonstrations (random joints near a nominal pose, 3 landmarks)."""
-    rng = np.random.default_rng(seed)
-    demos = []
-    for i in range(n):
-        poses = np.tile(np.eye(4), (len(NAMES), 1, 1))
-        poses[:, :3, 3] = rng.uniform(-0.5, 0.5, (len(NAMES), 3))
-        q = np.array([0.0, -0.5, 0.0, 1.2, 0.0, 0.5, 0.0]) + 0.1 * rng.standard_normal((samples + i, 7))
-        demos.append(Demonstration(q=q, dt=0.1, landmarks=poses, name=f"demo_{i:03d}"))
-    return DemoSet(demos=tuple(demos), joint_names=BAXTER_LEFT.joint_names, landmark_names=NAMES,
-                   robot=BAXTER_LEFT, task=POWDER)
+    return small_demoset(n, samples, seed)
 
 
 _rewrite = rewrite_npz
