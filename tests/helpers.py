@@ -54,3 +54,16 @@ def small_demoset(n: int = 2, samples: int = 30, seed: int = 0, ground_truth=Non
         demos.append(Demonstration(q=q, dt=0.1, landmarks=poses, name=f"demo_{i:03d}"))
     return DemoSet(demos=tuple(demos), joint_names=BAXTER_LEFT.joint_names, landmark_names=LANDMARK_NAMES,
                    robot=BAXTER_LEFT, task=POWDER, ground_truth=ground_truth)
+
+
+def synthetic_demo_dir(folder: Path, n_demos: int, time_steps: int, Z: int, samples_per_step) -> Path:
+    """Write a small known-truth powder demonstration set (lfd.synthetic, seed 1) into ``folder``."""
+    from lfd.demos import save_demos
+    from lfd.kinematics import KinematicModel
+    from lfd.synthetic import make_synthetic
+    from lfd.tasks import POWDER
+
+    ds, _ = make_synthetic(KinematicModel.from_spec(), n_demos=n_demos, time_steps=time_steps, Z=Z, seed=1,
+                           task=POWDER, samples_per_step=samples_per_step)
+    save_demos(folder, ds)
+    return folder

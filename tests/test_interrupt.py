@@ -23,8 +23,7 @@ import torch
 from lfd.checkpoint import (Interrupted, InterruptGuard, atomic_write_text, checkpoint_path, load_checkpoint,
                             temp_files)
 from lfd.cli import UsageError
-from lfd.demos import save_demos
-from lfd.tasks import POWDER
+from helpers import synthetic_demo_dir
 
 ROOT = Path(__file__).resolve().parent.parent
 RESTARTS = 8
@@ -32,13 +31,7 @@ RESTARTS = 8
 
 @pytest.fixture(scope="module")
 def demos(tmp_path_factory):
-    from lfd.kinematics import KinematicModel
-    from lfd.synthetic import make_synthetic
-    ds, _ = make_synthetic(KinematicModel.from_spec(), n_demos=4, time_steps=6, Z=3, seed=1, task=POWDER,
-                           samples_per_step=(3, 5))
-    d = tmp_path_factory.mktemp("demos")
-    save_demos(d, ds)
-    return d
+    return synthetic_demo_dir(tmp_path_factory.mktemp("demos"), 4, 6, 3, (3, 5))
 
 
 def _args(demos, out, *extra):

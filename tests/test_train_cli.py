@@ -22,8 +22,7 @@ import pytest
 from lfd.checkpoint import FitProgress, save_checkpoint
 from lfd.demos import DemoSet, save_demonstration, save_demos
 from lfd.robots import BAXTER_LEFT
-from lfd.tasks import POWDER
-from helpers import rewrite_npz, small_demoset
+from helpers import rewrite_npz, small_demoset, synthetic_demo_dir
 
 ROOT = Path(__file__).resolve().parent.parent
 NAMES = ("bowl", "marker_1", "marker_2")
@@ -195,13 +194,7 @@ def test_bad_input_one_line_exit_2(results, cid, fragment):
 # ----------------------------------------------------------------------------- numerical trouble
 @pytest.fixture(scope="module")
 def synth_dir(tmp_path_factory):
-    from lfd.kinematics import KinematicModel
-    from lfd.synthetic import make_synthetic
-    ds, _ = make_synthetic(KinematicModel.from_spec(), n_demos=3, time_steps=5, Z=2, seed=1, task=POWDER,
-                           samples_per_step=(3, 4))
-    d = tmp_path_factory.mktemp("synth")
-    save_demos(d, ds)
-    return d
+    return synthetic_demo_dir(tmp_path_factory.mktemp("synth"), 3, 5, 2, (3, 4))
 
 
 def _poison(monkeypatch, first_calls: float):
