@@ -35,12 +35,18 @@ from lfd.model import TaskModel
 from lfd.planner import ClosedLoopPlanner, PlannerSettings, PlanResult
 from lfd.roadmap import Roadmap, RoadmapSettings
 
-__all__ = ["TaskPlannerSettings", "TaskPlanner", "biased_configurations", "chain_edges"]
+__all__ = ["TaskPlannerSettings", "TaskPlanner", "biased_configurations", "chain_edges",
+           "project_to_model"]
 
 
 @dataclass(frozen=True)
 class TaskPlannerSettings:
-    """n_vertices: roadmap size; bias_fraction: share of vertices from the task model;
+    """n_vertices: roadmap size; bias_fraction: share of vertices from the task model's sampled
+    executions (IK chains, see ``biased_configurations``); region_fraction: share of the *other*
+    vertices drawn around the task's joint postures, ``N(mu_t, region_inflation^2 Sigma_t)`` (joint
+    block, random t), the rest uniform within the joint limits (``sample_fn``): the region
+    samples join the chains to each other and let paths detour around obstacles the chains run
+    into, the uniform ones keep every configuration reachable (asymptotic optimality);
     regrow_distance: landmark motion (m) that triggers new biased samples; regrow_vertices: how
     many; max_vertices: the roadmap never grows past this (default 3 x n_vertices), so a long run
     of landmark moves cannot grow memory without bound; fk_cache_rows: rows of cached FK at most;
@@ -48,6 +54,8 @@ class TaskPlannerSettings:
 
     n_vertices: int = 1000
     bias_fraction: float = 0.6
+    region_fraction: float = 0.67
+    region_inflation: float = 2.0
     regrow_distance: float = 0.10
     regrow_vertices: int = 400
     max_vertices: int | None = None
@@ -61,13 +69,69 @@ class TaskPlannerSettings:
             raise ValueError(f"n_vertices must be at least 2, got {self.n_vertices}")
         if not 0.0 <= self.bias_fraction <= 1.0:
             raise ValueError(f"bias_fraction must be in [0, 1], got {self.bias_fraction}")
+        if not 0.0 <= self.region_fraction <= 1.0 or self.region_inflation <= 0:
+            raise ValueError("region_fraction must be in [0, 1] and region_inflation > 0, got "
+                             f"{self.region_fraction}, {self.region_inflation}")
         if self.regrow_distance <= 0 or self.regrow_vertices < 0:
             raise ValueError("regrow_distance must be > 0 and regrow_vertices >= 0, got "
                              f"{self.regrow_distance}, {self.regrow_vertices}")
 
 
+def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.Tensor,
+                     landmarks: torch.Tensor, iters: int = 10, max_step: float = 0.2):
+    """Configurations near ``q`` whose features are closest to ``f_target`` in step t's metric.
+
+    Minimizes ``|| Sigma_t^-1/2 (f(q) - f_target) ||^2`` (``model.sigma_inv[t]``, Eq. 2 features
+    for ``landmarks (Z, 4, 4)``) by damped Gauss-Newton from ``q: (C, d)``; ``f_target: (C, F)``.
+    Where IK places the tool point exactly and leaves the joints to a null-space pull, this trades
+    tool-point error against joint deviation as the learned covariance does: where the
+    demonstrations kept the wrist turned and the tool point loose, so does the result.
+    Returns ``(q (C, d), improved (C,) bool)``; joints stay within their limits.
+    """
+    kin = model.kin
+    d = kin.dof
+    W = model.sigma_inv[t].detach()  # (F, F)
+    K = model.K_virt_inv(landmarks).detach()  # (4, 4)
+    A, b = K[:3, :3], K[:3, 3]
+    eye = torch.eye(d, dtype=q.dtype, device=q.device)
+
+    def residual(q):
+        T_world_ee = kin.fk(q)  # (C, 4, 4)
+        lever = T_world_ee[:, :3, :3] @ model.tool.detach()  # (C, 3) tool point offset, world
+        x = (T_world_ee[:, :3, 3] + lever) @ A.T + b  # (C, 3) tool point in the virtual frame
+        r = (torch.cat([q, x], dim=1) - f_target) @ W.T  # (C, F)
+        return r, lever
+
+    q = q.detach().clone()
+    f_target = f_target.detach()
+    r, lever = residual(q)
+    cost0 = cost = (r * r).sum(-1)  # (C,)
+    lam = torch.full_like(cost, 1e-2)
+    for _ in range(iters):
+        J = kin.jacobian(q)  # (C, 6, d)
+        J_tool = J[:, :3] + torch.cross(J[:, 3:], lever[..., None].expand_as(J[:, 3:]), dim=1)
+        Jf = torch.cat([eye.expand(len(q), d, d), A @ J_tool], dim=1)  # (C, F, d)
+        Jr = W @ Jf  # (C, F, d)
+        H = Jr.transpose(1, 2) @ Jr
+        g = (Jr.transpose(1, 2) @ r[..., None])[..., 0]  # (C, d)
+        dq = -torch.linalg.solve(H + lam[:, None, None] * (eye + torch.diag_embed(
+            torch.diagonal(H, dim1=1, dim2=2))), g)
+        dq = dq * (max_step / dq.abs().amax(-1).clamp_min(max_step))[:, None]
+        q_new = torch.maximum(torch.minimum(q + dq, kin.upper), kin.lower)
+        r_new, lever_new = residual(q_new)
+        cost_new = (r_new * r_new).sum(-1)
+        take = cost_new < cost
+        q = torch.where(take[:, None], q_new, q)
+        r = torch.where(take[:, None], r_new, r)
+        lever = torch.where(take[:, None], lever_new, lever)
+        cost = torch.where(take, cost_new, cost)
+        lam = torch.where(take, lam * 0.3, lam * 10.0)
+    return q, cost < cost0
+
+
 def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
-                          generator: torch.Generator, step_jitter: float = 0.3):
+                          generator: torch.Generator, step_jitter: float = 0.3,
+                          project_iters: int = 10):
     """About ``n`` configurations where the model wants the robot for ``landmarks``.
 
     ``landmarks``: ``(Z, 4, 4)`` kept landmarks in model order. The samples come as *chains*, one
@@ -76,7 +140,9 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
     step t, so that consecutive samples of a chain are alike, as consecutive moments of a
     demonstration are. The joint part of ``f_t`` is the null-space posture and the task part,
     mapped into the world through the current ``K_virt``, the target of the tool point; IK solves
-    the chain's steps in order, each from the previous step's solution. Consecutive
+    the chain's steps in order, each from the previous step's solution, and ``project_to_model``
+    (``project_iters`` Gauss-Newton steps) then moves each solution to the configuration whose
+    features best match the sample in the step's learned metric. Consecutive
     configurations of a chain are therefore near each other in joint space and the roadmap gets
     connected corridors through the task, not scattered islands.
 
@@ -102,9 +168,10 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
         seed = q_rest[:, t] if q_prev is None else q_prev
         res = solve_ik(kin, T_target, seed, p_ee_tool=model.tool, weights=weights, q_rest=q_rest[:, t],
                        config=IKConfig(max_iters=40 if q_prev is None else 20, min_iters=5, pos_tol=5e-3))
-        q_prev = res.q
-        out.append(res.q)
-        ok.append(res.success)
+        q, better = project_to_model(model, res.q, t, f[:, t], landmarks, iters=project_iters)
+        q_prev = q
+        out.append(q)
+        ok.append(res.success | better)
     Q = torch.stack(out, dim=1).reshape(chains * T, d).detach().cpu().numpy()  # (C*T, d), chain-major
     valid = torch.stack(ok, dim=1).reshape(-1).cpu().numpy()
     return Q, valid, T
@@ -182,6 +249,14 @@ class TaskPlanner:
             def sample_fn(n, _kin=self.kin, _gen=self._gen):
                 return _kin.sample_uniform(n, generator=_gen).cpu().numpy()
         self.sample_fn = sample_fn
+        T, F = model.mu.shape
+        d = F - 3
+        sigma = torch.linalg.inv(model.sigma_inv.detach())  # (T, F, F) lower Cholesky of Sigma_t
+        cov_q = (sigma @ sigma.transpose(-1, -2))[:, :d, :d]  # (T, d, d) joint block
+        self._region_mu = model.mu.detach()[:, :d]  # (T, d)
+        self._region_L = torch.linalg.cholesky(
+            settings.region_inflation ** 2 * cov_q
+            + 1e-6 * torch.eye(d, dtype=cov_q.dtype, device=cov_q.device))  # (T, d, d)
         self.collision_fn, self.segment_fn = collision_fn, segment_fn
         self.batch_collision_fn = batch_collision_fn
         self._fk = _FKCache(self.kin, settings.fk_cache_rows)
@@ -191,6 +266,26 @@ class TaskPlanner:
         self.planner: ClosedLoopPlanner | None = None
         self._missing: str | None = None
         self.stats = {"vertices_added": 0, "regrows": 0}
+
+    # -- sampling -------------------------------------------------------------------------
+    def region_samples(self, n: int) -> np.ndarray:
+        """``(n, d)`` postures around the task: ``N(mu_t, region_inflation^2 Sigma_t)`` over the
+        joint block, ``t`` uniform over the time steps, clamped into the joint limits. They do
+        not depend on the landmarks."""
+        T, d = self._region_mu.shape
+        t = torch.randint(T, (n,), generator=self._gen)
+        z = torch.randn(n, d, generator=self._gen, dtype=self.model.dtype).to(self.model.device)
+        q = self._region_mu[t] + torch.einsum("nij,nj->ni", self._region_L[t], z)  # (n, d)
+        q = torch.maximum(torch.minimum(q, self.kin.upper), self.kin.lower)
+        return q.cpu().numpy()
+
+    def _free_space_samples(self, n: int) -> np.ndarray:
+        """``(n, d)``: each a region sample with probability ``region_fraction``, else ``sample_fn``."""
+        m = int(self._rng.binomial(n, self.settings.region_fraction))
+        parts = [self.region_samples(m)]
+        if n > m:
+            parts.append(np.asarray(self.sample_fn(n - m), dtype=float).reshape(n - m, self.kin.dof))
+        return self._rng.permutation(np.concatenate(parts, axis=0))
 
     # -- landmarks ------------------------------------------------------------------------
     def update_landmarks(self, names, T_world_landmarks) -> None:
@@ -238,7 +333,7 @@ class TaskPlanner:
     def _build(self) -> None:
         s = self.settings
         n_bias = int(round(s.bias_fraction * s.n_vertices))
-        self.roadmap = Roadmap.build(self.sample_fn, max(2, s.n_vertices - n_bias), self.collision_fn,
+        self.roadmap = Roadmap.build(self._free_space_samples, max(2, s.n_vertices - n_bias), self.collision_fn,
                                      self.segment_fn, batch_collision_fn=self.batch_collision_fn,
                                      settings=s.roadmap)
         self.stats["vertices_added"] = self.roadmap.n

@@ -60,14 +60,18 @@ def tool_boxes(task: str) -> list[tuple]:
         hx, ft, wh, wt = L.SPOON_SCOOP_HALF_X, L.SPOON_FLOOR_THICKNESS, L.SPOON_WALL_HEIGHT, L.SPOON_WALL_THICKNESS
         zc, hz = (z0 + z1) / 2, (z1 - z0) / 2
         ylo, yhi = -ft, wh
-        return [
-            (L.SPOON_HANDLE[0], L.SPOON_HANDLE[1], ident),
-            ((0, -ft / 2, zc), (hx, ft / 2, hz), ident),                                  # floor
-            ((hx - wt / 2, (ylo + yhi) / 2, zc), (wt / 2, (yhi - ylo) / 2, hz), ident),    # +x wall
-            ((-hx + wt / 2, (ylo + yhi) / 2, zc), (wt / 2, (yhi - ylo) / 2, hz), ident),   # -x wall
-            ((0, (ylo + yhi) / 2, z0 + wt / 2), (hx, (yhi - ylo) / 2, wt / 2), ident),     # back wall
-            ((0, (ylo + yhi) / 2, z1 - wt / 2), (hx, (yhi - ylo) / 2, wt / 2), ident),     # front wall
-        ]
+        slant, flare, rim_x = L.SPOON_WALL_SLANT, L.SPOON_WALL_FLARE, L.SPOON_RIM_HALF_X
+        boxes = [(L.SPOON_HANDLE[0], L.SPOON_HANDLE[1], ident),
+                 ((0, -ft / 2, zc), (hx, ft / 2, hz), ident)]                             # floor
+        for side in (1, -1):  # side walls hinged at the floor's edges, leaning out by the flare
+            up_out = np.array([side * math.sin(flare), math.cos(flare)])   # along the wall, (x, y)
+            outward = np.array([side * math.cos(flare), -math.sin(flare)])  # wall normal, outwards
+            c = np.array([side * hx, 0.0]) + up_out * slant / 2 + outward * wt / 2
+            q = p.getQuaternionFromEuler((0, 0, -side * flare))
+            boxes.append(((c[0], c[1], zc), (wt / 2, slant / 2 + wt / 2, hz), q))
+        for z_end in (z0 + wt / 2, z1 - wt / 2):  # back and front walls, as wide as the rim
+            boxes.append(((0, (ylo + yhi) / 2, z_end), (rim_x, (yhi - ylo) / 2, wt / 2), ident))
+        return boxes
     if task == "pour":
         r, w, zc = L.PITCHER_RADIUS, L.PITCHER_WALL, L.PITCHER_AXIS_Z
         y0, y1, yn = L.PITCHER_FLOOR_Y, L.PITCHER_RIM_Y, L.PITCHER_NOTCH_Y

@@ -1,7 +1,10 @@
 """Closed-loop execution of a task plan on the simulated Baxter (paper Sec. VI).
 
 The arm follows the planned waypoints under PyBullet's position control at the physics rate
-(``layout.SIM_DT``, 240 Hz), moving each roadmap edge at ``speed`` times the URDF velocity limits;
+(``layout.SIM_DT``, 240 Hz), moving each roadmap edge with a minimum-jerk profile (it starts and
+stops at rest, so the powder or liquid is not flung out by velocity jumps at the waypoints) whose
+peak joint speeds stay within ``speed`` times the URDF velocity limits and peak accelerations
+within ``accel``;
 at each time-step transition it waits until the step it leaves has lasted as long as the
 demonstrations' expected time in that step (``expected_sojourn``), and at least one sampling
 interval. The path in configuration space is the plan's; only its timing is chosen here. Every
@@ -23,18 +26,26 @@ import pybullet as p
 
 from sim import layout as L
 
-__all__ = ["ExecSettings", "RunResult", "execute_plan", "plan_segments"]
+__all__ = ["ExecSettings", "RunResult", "execute_plan", "plan_segments", "profile_at"]
+
+PROFILES = ("min-jerk", "linear")
+# min-jerk s(a) = 10a^3 - 15a^4 + 6a^5 on a in [0, 1]: peak ds/da = 15/8, peak d2s/da2 = 10/sqrt(3)
+_MJ_PEAK_V, _MJ_PEAK_A = 1.875, 10.0 / math.sqrt(3.0)
 
 
 @dataclass(frozen=True)
 class ExecSettings:
-    """speed: fraction of the joint velocity limits used on roadmap edges; sense_period: seconds
+    """speed: fraction of the joint velocity limits used on roadmap edges; accel: joint
+    acceleration limit (rad/s^2) of the min-jerk profile; profile: "min-jerk" (rest to rest on
+    every edge) or "linear" (constant speed, velocity jumps at the waypoints); sense_period: seconds
     between landmark readings; replan_threshold: landmark motion (m) that triggers a re-plan;
     settle_s: time held at the end before particles are counted; success_fraction: particles in the
     bowl needed; force: position-control force (N m); record_every: sim steps between recorded
     task-point samples; frame_every: sim steps between video frames (0: none)."""
 
     speed: float = 0.5
+    accel: float = 2.0
+    profile: str = "min-jerk"
     sense_period: float = 0.1
     replan_threshold: float = 0.01
     settle_s: float = 1.5
@@ -47,6 +58,10 @@ class ExecSettings:
     def __post_init__(self):
         if not 0 < self.speed <= 1:
             raise ValueError(f"speed must be in (0, 1], got {self.speed}")
+        if self.profile not in PROFILES:
+            raise ValueError(f"profile must be one of {PROFILES}, got {self.profile!r}")
+        if self.accel <= 0:
+            raise ValueError(f"accel must be positive, got {self.accel}")
         if self.sense_period <= 0 or self.replan_threshold <= 0:
             raise ValueError("sense_period and replan_threshold must be positive")
 
@@ -75,11 +90,22 @@ class RunResult:
         return d
 
 
+def profile_at(a: float, profile: str = "min-jerk") -> tuple[float, float]:
+    """Progress ``s`` and its rate ``ds/da`` at phase ``a`` in [0, 1] of a segment."""
+    if profile == "linear":
+        return a, 1.0
+    return a ** 3 * (10 - 15 * a + 6 * a * a), 30 * a * a * (1 - a) ** 2
+
+
 def plan_segments(configurations: np.ndarray, time_steps: np.ndarray, vmax: np.ndarray, dt: float,
-                  speed: float, sojourn: np.ndarray | None = None) -> list[tuple[np.ndarray, np.ndarray, float, int]]:
+                  speed: float, sojourn: np.ndarray | None = None, accel: float | None = None
+                  ) -> list[tuple[np.ndarray, np.ndarray, float, int]]:
     """Timed segments ``(q_from, q_to, duration_s, time_step)`` of a plan.
 
-    A roadmap edge (q changes, t constant) takes ``max_j |dq_j| / (speed vmax_j)``. A time-step
+    A roadmap edge (q changes, t constant) takes ``max_j |dq_j| / (speed vmax_j)`` at constant
+    speed; with ``accel`` (rad/s^2) it is timed for the min-jerk profile instead, the shortest
+    duration whose peak speed ``1.875 |dq_j| / T`` and peak acceleration ``5.77 |dq_j| / T^2`` stay
+    within ``speed vmax_j`` and ``accel`` for every joint. A time-step
     transition (q constant) dwells at least one sampling interval ``dt``; with ``sojourn (T,)``,
     the expected time the demonstrations spent in each step, it dwells until the step being left
     has lasted that long (the demonstrations' pace: pouring and dumping take the time they took
@@ -91,7 +117,12 @@ def plan_segments(configurations: np.ndarray, time_steps: np.ndarray, vmax: np.n
     for i in range(len(configurations) - 1):
         q0, q1 = configurations[i], configurations[i + 1]
         t0, t1 = int(time_steps[i]), int(time_steps[i + 1])
-        move = float(np.max(np.abs(q1 - q0) / (speed * vmax)))
+        dq = np.abs(q1 - q0)
+        if accel is None:
+            move = float(np.max(dq / (speed * vmax)))
+        else:
+            move = float(max(np.max(_MJ_PEAK_V * dq / (speed * vmax)),
+                             np.sqrt(_MJ_PEAK_A * np.max(dq) / accel)))
         if move > 1e-9:
             segs.append((q0, q1, move, t0))
             spent += move
@@ -174,7 +205,8 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         result.reason = f"no initial plan: {res.status} ({res.message})"
         return result
     planned_at = _relevant(names, poses, keep)
-    segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed, sojourn)
+    accel = s.accel if s.profile == "min-jerk" else None
+    segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed, sojourn, accel)
     sense_every = max(1, int(round(s.sense_period / L.SIM_DT)))
     moved = scenario is None or scenario.bowl_after is None
     step, t_now, seg_i, seg_t = 0, 0, 0, 0.0
@@ -183,8 +215,9 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         t_now = t_seg
         seg_t += L.SIM_DT
         a = min(1.0, seg_t / dur) if dur > 0 else 1.0
-        q_cmd = q0 + a * (q1 - q0)
-        qdot = (q1 - q0) / dur if dur > 0 and a < 1.0 else np.zeros_like(q0)
+        prog, rate = profile_at(a, s.profile)
+        q_cmd = q0 + prog * (q1 - q0)
+        qdot = rate * (q1 - q0) / dur if dur > 0 and a < 1.0 else np.zeros_like(q0)
         world.command_q(q_cmd, force=s.force, qdot=qdot)
         world.step(1)
         step += 1
@@ -215,7 +248,7 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         result.edges_evaluated.append(res.n_edges_evaluated)
         planned_at = now
         if res.ok:
-            segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed, sojourn)
+            segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed, sojourn, accel)
             seg_i, seg_t = 0, 0.0
     settle = int(s.settle_s / L.SIM_DT)
     for k in range(settle):

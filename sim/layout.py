@@ -18,6 +18,8 @@ along gripper +z; the spoon's tip is at the far (+z) end, the pitcher's spout on
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 # --- table ---------------------------------------------------------------------------
@@ -81,13 +83,21 @@ DEFAULT_XY = {
 MARKER_HEIGHT_ABOVE_TABLE = 0.10
 
 # --- tools (gripper frame) -----------------------------------------------------------
-# Spoon: a flat handle from z=-0.02 to 0.14, a scoop z in [0.14, 0.20], x in [-0.03, 0.03]
-# whose floor top is at y=0 and whose walls rise to y=0.025. Tip: (0, 0, 0.20).
+# Spoon: a flat handle from z=-0.02 to 0.14, a scoop z in [0.14, 0.20] whose flat floor (top at
+# y=0) spans x in [-0.03, 0.03]. Its side walls (+-x) flare outwards like the sides of a real
+# spoon's bowl: SPOON_WALL_SLANT long, leaning SPOON_WALL_FLARE from the vertical, so that their
+# rim is SPOON_WALL_HEIGHT above the floor. The powder stays in while the spoon is carried level
+# and slides out over the lowered rim once the roll exceeds 90 deg - flare + the powder's angle
+# (50 deg: the particles roll), as from a spoon, not from a box that holds it until past 90 deg.
+# The back and front walls (z ends) are vertical. Tip: (0, 0, 0.20).
 SPOON_HANDLE = ((0.0, 0.0, 0.06), (0.008, 0.004, 0.08))          # (centre, half extents)
 SPOON_SCOOP_Z = (0.14, 0.20)
 SPOON_SCOOP_HALF_X = 0.03
 SPOON_FLOOR_THICKNESS = 0.004
-SPOON_WALL_HEIGHT = 0.025
+SPOON_WALL_SLANT = 0.03
+SPOON_WALL_FLARE = math.radians(40.0)
+SPOON_WALL_HEIGHT = SPOON_WALL_SLANT * math.cos(SPOON_WALL_FLARE)   # rim above the floor, ~0.023
+SPOON_RIM_HALF_X = SPOON_SCOOP_HALF_X + SPOON_WALL_SLANT * math.sin(SPOON_WALL_FLARE)  # ~0.049
 SPOON_WALL_THICKNESS = 0.004
 SPOON_TIP = (0.0, 0.0, 0.20)
 

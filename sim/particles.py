@@ -7,6 +7,7 @@ elsewhere (spilled).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -114,6 +115,8 @@ def in_tool_mask(p_world: np.ndarray, T_world_tool: np.ndarray, task: str) -> np
     x, y, z = p_tool[:, 0], p_tool[:, 1], p_tool[:, 2]
     if task == "powder":
         z0, z1 = L.SPOON_SCOOP_Z
-        return (np.abs(x) < L.SPOON_SCOOP_HALF_X) & (z > z0) & (z < z1) & (y > -0.002) & (y < L.SPOON_WALL_HEIGHT + 0.01)
+        # inside the flared cross-section: |x| below the wall line through floor edge and rim
+        wall_x = L.SPOON_SCOOP_HALF_X + np.clip(y, 0.0, None) * math.tan(L.SPOON_WALL_FLARE)
+        return (np.abs(x) < wall_x) & (z > z0) & (z < z1) & (y > -0.002) & (y < L.SPOON_WALL_HEIGHT + 0.01)
     radial = np.hypot(x, z - L.PITCHER_AXIS_Z)
     return (radial < L.PITCHER_RADIUS) & (y > L.PITCHER_FLOOR_Y - 0.002) & (y < L.PITCHER_RIM_Y + 0.01)

@@ -76,7 +76,7 @@ def test_bad_particle_arguments():
 def test_dumping_over_the_bowl_fills_it(world):
     """The bowl moved under the rim the tilted tool pours over catches what it drops."""
     # rolling about +z lowers the tool's -x side: the spoon's rim there, the pitcher's spout lip
-    lip = {"powder": (-L.SPOON_SCOOP_HALF_X, L.SPOON_WALL_HEIGHT, np.mean(L.SPOON_SCOOP_Z)),
+    lip = {"powder": (-L.SPOON_RIM_HALF_X, L.SPOON_WALL_HEIGHT, np.mean(L.SPOON_SCOOP_Z)),
            "pour": L.PITCHER_SPOUT_LIP}[world.task]
     # the liquid runs off the spout while the roll passes 90 deg; the powder falls at the end
     world.set_q(tilt_q({"powder": 120, "pour": 90}[world.task]))

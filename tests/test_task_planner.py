@@ -87,3 +87,47 @@ def test_plan_segments_respect_velocity_limits_and_pace():
     assert move1[2] == pytest.approx(0.6 / 0.75) and move1[3] == 1
     no_pace = plan_segments(Q, steps, vmax, dt=0.1, speed=0.5)
     assert no_pace[1][2] == pytest.approx(0.1)                       # one sampling interval
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_project_to_model_recovers_the_configuration_of_reachable_features(dtype):
+    """Features of a known configuration as the target: Gauss-Newton from a perturbed start
+    returns to it (the joint features make the minimum unique), never leaving the limits."""
+    from lfd.task_planner import project_to_model
+    kin = KinematicModel.from_spec(dtype=dtype)
+    model = _model(KinematicModel.from_spec(dtype=torch.float64)).to(dtype=dtype)
+    model.kin = kin
+    g = torch.Generator().manual_seed(3)
+    landmarks = torch.eye(4, dtype=dtype)[None].clone()
+    landmarks[0, :3, 3] = torch.tensor([0.7, 0.2, -0.1], dtype=dtype)
+    q_true = model.mu[2, :7].detach() + 0.2 * torch.randn(8, 7, generator=g, dtype=dtype)
+    q_true = torch.maximum(torch.minimum(q_true, kin.upper - 0.3), kin.lower + 0.3)  # (8, 7)
+    f_true = model.features(q_true, landmarks=landmarks).detach()  # (8, 10)
+    q0 = q_true + 0.15 * torch.randn(8, 7, generator=g, dtype=dtype)
+    q, improved = project_to_model(model, q0, 2, f_true, landmarks, iters=25)
+    assert bool(improved.all())
+    tol = 1e-6 if dtype == torch.float64 else 2e-3
+    assert float((q - q_true).abs().max()) < tol
+    assert bool(kin.within_limits(q).all())
+
+
+def test_project_to_model_trades_tool_error_for_joints_as_the_covariance_says():
+    """A target whose tool point the joints cannot give: with a loose tool-point variance the
+    joints stay near their target, with a tight one the tool point is matched instead."""
+    from lfd.task_planner import project_to_model
+    kin = KinematicModel.from_spec(dtype=torch.float64)
+    landmarks = torch.eye(4, dtype=torch.float64)[None]
+    errs = {}
+    for name, s_tool in (("loose", 1.0), ("tight", 0.001)):
+        model = _model(kin)
+        model.sigma_inv = torch.diag_embed(torch.cat([torch.full((7,), 1 / 0.1), torch.full((3,), 1 / s_tool)])
+                                           ).to(torch.float64).repeat(model.mu.shape[0], 1, 1)
+        model.kin = kin
+        q_t = model.mu[:1, :7].detach()
+        f_t = model.features(q_t, landmarks=landmarks).detach()
+        f_t[:, 7:] += torch.tensor([0.05, -0.05, 0.05], dtype=torch.float64)  # move the tool target 8.7 cm
+        q, _ = project_to_model(model, q_t.clone(), 0, f_t, landmarks, iters=30)
+        x = model.features(q, landmarks=landmarks).detach()[:, 7:]
+        errs[name] = (float((x - f_t[:, 7:]).norm()), float((q - q_t).norm()))
+    assert errs["tight"][0] < 0.005 < errs["loose"][0]      # tight: the tool point reaches its target
+    assert errs["loose"][1] < 0.02 < errs["tight"][1]       # loose: the joints barely move
