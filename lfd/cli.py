@@ -4,6 +4,11 @@ Bad input (a broken demonstration file, an unknown option value, a folder that c
 written, a model that is not ours) is the user's to fix, so it gets one line on stderr that
 names the problem and exit status 2 — never a traceback. Anything else is a bug and keeps its
 traceback.
+
+Output piped into a reader that stops early (``train.py --help | head -1``) ends quietly with
+exit status 141 (``EXIT_BROKEN_PIPE`` = 128 + SIGPIPE), the status a shell reports for a Unix tool
+killed by SIGPIPE (``yes | head -1``): under ``set -o pipefail`` the pipeline fails as it would
+with any other tool, and the status is not 0 (the output was cut) nor 2 (the input was fine).
 """
 
 from __future__ import annotations
@@ -13,7 +18,9 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["UsageError", "ArgumentParser", "run_main", "writable_dir", "USER_ERRORS"]
+__all__ = ["UsageError", "ArgumentParser", "run_main", "writable_dir", "USER_ERRORS", "EXIT_BROKEN_PIPE"]
+
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE: what a shell reports for a tool killed by a closed pipe
 
 
 class UsageError(ValueError):
@@ -58,19 +65,38 @@ def writable_dir(path: str | Path, what: str = "--out") -> Path:
 
 
 def run_main(main, argv=None, prog: str | None = None) -> None:
-    """Run ``main(argv) -> int | None`` and exit; user errors become one line and status 2."""
+    """Run ``main(argv) -> int | None`` and exit; user errors become one line and status 2.
+
+    A closed stdout (the reader of a pipe stopped) exits quietly with ``EXIT_BROKEN_PIPE``.
+    """
     prog = prog or Path(sys.argv[0]).name
     try:
-        code = main(argv)
-    except SystemExit:  # argparse's own exit: no need to import the library's error types
-        raise
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted", file=sys.stderr)
-        sys.exit(130)
-    except USER_ERRORS() as e:
-        msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        if isinstance(e, OSError) and e.filename and str(e.filename) not in msg:
-            msg = f"{e.filename}: {msg}"
-        print(f"{prog}: error: {msg}", file=sys.stderr)
-        sys.exit(2)
-    sys.exit(int(code or 0))
+        try:
+            code = int(main(argv) or 0)
+        except SystemExit as e:  # argparse's own exit (--help, a bad argument): flushed below
+            code = e.code
+        except KeyboardInterrupt:
+            print(f"{prog}: interrupted", file=sys.stderr)
+            code = 130
+        except USER_ERRORS() as e:
+            msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            if isinstance(e, OSError) and e.filename and str(e.filename) not in msg:
+                msg = f"{e.filename}: {msg}"
+            print(f"{prog}: error: {msg}", file=sys.stderr)
+            code = 2
+        sys.stdout.flush()  # a closed pipe shows here, not as "Exception ignored" at shutdown
+    except BrokenPipeError:
+        _stdout_to_devnull()
+        code = EXIT_BROKEN_PIPE
+    sys.exit(code)
+
+
+def _stdout_to_devnull() -> None:
+    """Point stdout's file descriptor at /dev/null, so the interpreter's final flush of what is
+    still buffered cannot fail again (the recipe of the ``signal`` module's documentation)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # no real stdout (embedded, captured): nothing to flush
+        pass
