@@ -7,7 +7,6 @@ the medians and writes them (with every run) to ``runs/bench/collision.json``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import platform
 import statistics
@@ -22,6 +21,8 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:  # run as a script: make the repository's packages importable
     sys.path.insert(0, str(REPO))
 
+from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir  # noqa: E402
+
 
 @dataclass(frozen=True)
 class CollisionBench:
@@ -35,12 +36,6 @@ class CollisionBench:
     single_runs: tuple
     batch_runs: tuple
     machine: str
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # one line, exit 2
-        print(f"error: {message}", file=sys.stderr)
-        sys.exit(2)
 
 
 def run(task: str, n: int, runs: int, method: str = "shadow", seed: int = 0) -> CollisionBench:
@@ -70,21 +65,18 @@ def run(task: str, n: int, runs: int, method: str = "shadow", seed: int = 0) -> 
 
 
 def main(argv=None) -> int:
-    ap = _Parser(prog="benchmarks/collision.py", description=__doc__.splitlines()[0])
-    ap.add_argument("--task", default="powder")
+    ap = ArgumentParser(prog="benchmarks/collision.py", description=__doc__.splitlines()[0])
+    ap.add_argument("--task", default="powder", choices=("powder", "pour"))
     ap.add_argument("--n", type=int, default=1000, help="configurations per run")
     ap.add_argument("--runs", type=int, default=5, help="runs (the median is reported)")
     ap.add_argument("--out", default=str(REPO / "runs" / "bench" / "collision.json"))
     args = ap.parse_args(argv)
-    if args.task not in ("powder", "pour"):
-        ap.error(f"--task must be powder or pour, got {args.task!r}")
     if args.n < 1 or args.runs < 1:
-        ap.error(f"--n and --runs must be >= 1, got {args.n} and {args.runs}")
+        raise UsageError(f"--n and --runs must be at least 1, got {args.n} and {args.runs}")
     out = Path(args.out)
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        ap.error(f"cannot create {out.parent}: {e.strerror}")
+    if out.is_dir():
+        raise UsageError(f"--out {out}: is a folder; give the JSON file to write")
+    writable_dir(out.parent, what="--out's folder")
     results = []
     for method in ("shadow", "inplace"):
         res = run(args.task, args.n, args.runs, method)
@@ -95,10 +87,10 @@ def main(argv=None) -> int:
     try:
         out.write_text(json.dumps({"default": "shadow", "results": results}, indent=2) + "\n")
     except OSError as e:
-        ap.error(f"cannot write {out}: {e.strerror}")
+        raise UsageError(f"cannot write {out}: {e.strerror or e}") from e
     print(out)
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_main(main, prog="benchmarks/collision.py")

@@ -14,7 +14,6 @@ options (and of the volume prior) against known truth on several synthetic data 
 
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
 import sys
@@ -27,6 +26,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir  # noqa: E402
 from lfd.kinematics import KinematicModel  # noqa: E402
 from lfd.learn import FitConfig, fit  # noqa: E402
 from lfd.synthetic import make_synthetic  # noqa: E402
@@ -102,22 +102,25 @@ def compare(args) -> dict:
     return {"rows": rows, "summary": summary}
 
 
-def main(argv=None):
-    p = argparse.ArgumentParser(description="lfd learning benchmarks")
-    p.add_argument("--runs", type=int, default=3)
-    p.add_argument("--restarts", type=int, default=None)
-    p.add_argument("--compare", action="store_true")
-    p.add_argument("--seeds", type=int, default=3)
+def main(argv=None) -> int:
+    p = ArgumentParser(prog="benchmarks/learning.py", description="lfd learning benchmarks")
+    p.add_argument("--runs", type=int, default=3, help="timed fits per task (the median is reported)")
+    p.add_argument("--restarts", type=int, default=None, help="restarts per fit (default: FitConfig's)")
+    p.add_argument("--compare", action="store_true", help="full vs block covariance on known truth")
+    p.add_argument("--seeds", type=int, default=3, help="synthetic data sets per kind (--compare)")
     args = p.parse_args(argv)
-    out_dir = ROOT / "runs" / "bench"
-    out_dir.mkdir(parents=True, exist_ok=True)
+    for name, value in (("--runs", args.runs), ("--restarts", args.restarts), ("--seeds", args.seeds)):
+        if value is not None and value < 1:
+            raise UsageError(f"{name} must be at least 1, got {value}")
+    out_dir = writable_dir(ROOT / "runs" / "bench", what="output folder")
     if args.compare:
         result, path = compare(args), out_dir / "learning_compare.json"
     else:
         result, path = timing(args), out_dir / "learning.json"
     path.write_text(json.dumps(result, indent=2) + "\n")
     print(f"wrote {path}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main, prog="benchmarks/learning.py")

@@ -23,7 +23,6 @@ default thread pool made small step-cost batches ~10x slower.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import platform
@@ -33,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
 from lfd.planner import ClosedLoopPlanner, PlannerSettings
 from lfd.roadmap import Roadmap, RoadmapSettings, mixed_samples
 from lfd.stcost import CostSettings
@@ -146,8 +146,8 @@ def run_size(n: int, moves: int, seed: int, eager_compare: bool, move_sigma: flo
     return out
 
 
-def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv=None) -> int:
+    ap = ArgumentParser(prog="benchmarks/planning.py", description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 5000])
     ap.add_argument("--moves", type=int, default=30)
     ap.add_argument("--seed", type=int, default=0)
@@ -157,7 +157,14 @@ def main(argv=None) -> dict:
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "bench" / "planning.json")
     args = ap.parse_args(argv)
     if args.moves < 20:
-        ap.error("--moves must be >= 20")
+        raise UsageError(f"--moves must be at least 20, got {args.moves}")
+    if min(args.sizes) < 10:
+        raise UsageError(f"--sizes must each be at least 10 vertices, got {args.sizes}")
+    if not (math.isfinite(args.move_sigma) and args.move_sigma > 0):
+        raise UsageError(f"--move-sigma must be a positive number of radians, got {args.move_sigma}")
+    if args.out.is_dir():
+        raise UsageError(f"--out {args.out}: is a folder; give the JSON file to write")
+    writable_dir(args.out.parent, what="--out's folder")
     torch.set_num_threads(1)
     report = {"setting": {"d": 7, "T": T, "dt": DT, "vmax": VMAX.tolist(), "sigma": SIGMA,
                           "obstacles": "4 spheres r=0.6 in joint space", "torch_threads": 1,
@@ -166,14 +173,11 @@ def main(argv=None) -> dict:
               "targets_s": {"1000": 0.050, "5000": 0.200},
               "runs": [run_size(n, args.moves, args.seed, not args.no_eager, args.move_sigma)
                        for n in args.sizes]}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=2))
-    return report
-
-
-if __name__ == "__main__":
-    rep = main()
-    for r in rep["runs"]:
+    try:
+        args.out.write_text(json.dumps(report, indent=2))
+    except OSError as e:
+        raise UsageError(f"cannot write {args.out}: {e.strerror or e}") from e
+    for r in report["runs"]:
         print(f"n={r['n']:5d} k={r['k']} build {r['build_lazy_s']:.2f}s "
               f"(eager {r.get('build_eager_s', float('nan')):.2f}s) "
               f"first plan {r['first_plan']['latency_s'] * 1e3:.0f} ms")
@@ -184,3 +188,8 @@ if __name__ == "__main__":
                   f"{rp['cpu_median_s'] * 1e3:.1f} ms p95 {rp['cpu_p95_s'] * 1e3:.1f} ms | "
                   f"edges {rp['edges_evaluated_median']:.0f} expanded {rp['expanded_median']:.0f} "
                   f"{rp['statuses']}")
+    return 0
+
+
+if __name__ == "__main__":
+    run_main(main, prog="benchmarks/planning.py")

@@ -15,7 +15,6 @@ Command line: ``python -m sim.world [--task powder|pour] [--gui] [--snapshot FIL
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import tempfile
@@ -327,7 +326,9 @@ class World:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m sim.world", description="Show or render the simulated lab.")
+    from lfd.cli import ArgumentParser, UsageError
+
+    ap = ArgumentParser(prog="python -m sim.world", description="Show or render the simulated lab.")
     ap.add_argument("--task", default="powder", help="powder (spoon) or pour (pitcher)")
     ap.add_argument("--gui", action="store_true", help="open the PyBullet GUI")
     ap.add_argument("--snapshot", metavar="FILE.png", help="render headless to this PNG")
@@ -336,33 +337,27 @@ def main(argv=None) -> int:
                     help="place the four obstacles (paper towels, lamp shade, vase, books) at their default places")
     args = ap.parse_args(argv)
     if args.task not in TASKS:
-        print(f"error: --task must be one of {', '.join(TASKS)}, got {args.task!r}", file=sys.stderr)
-        return 2
+        raise UsageError(f"--task must be one of {', '.join(TASKS)}, got {args.task!r}")
     if args.steps < 0:
-        print(f"error: --steps must be >= 0, got {args.steps}", file=sys.stderr)
-        return 2
+        raise UsageError(f"--steps must be >= 0, got {args.steps}")
     if args.snapshot:
         out = Path(args.snapshot)
         if out.suffix.lower() != ".png":
-            print(f"error: --snapshot must name a .png file, got {out}", file=sys.stderr)
-            return 2
+            raise UsageError(f"--snapshot must name a .png file, got {out}")
         if not out.parent.is_dir():
-            print(f"error: cannot write {out}: folder {out.parent} does not exist", file=sys.stderr)
-            return 2
+            raise UsageError(f"cannot write {out}: folder {out.parent} does not exist")
     try:
         scenario = {n: L.DEFAULT_XY[n] for n in ("paper_towels", "lamp_shade", "vase", "books")} if args.obstacles else None
         world = World(args.task, gui=args.gui, scenario=scenario)
     except (ValueError, FileNotFoundError, RuntimeError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+        raise UsageError(str(e)) from e
     with world:
         world.step(args.steps)
         if args.snapshot:
             try:
                 world.snapshot(args.snapshot)
             except OSError as e:
-                print(f"error: cannot write {args.snapshot}: {e.strerror or e}", file=sys.stderr)
-                return 2
+                raise UsageError(f"cannot write {args.snapshot}: {e.strerror or e}") from e
             print(args.snapshot)
         if args.gui:
             import time
@@ -377,4 +372,5 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from lfd.cli import run_main
+    run_main(main, prog="python -m sim.world")

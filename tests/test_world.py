@@ -112,6 +112,7 @@ def test_bad_world_arguments():
     (["--task", "soup"], "--task must be one of"),
     (["--snapshot", "/nonexistent/dir/scene.png"], "does not exist"),
     (["--snapshot", "scene.jpg"], "must name a .png"),
+    (["--steps", "x"], "argument --steps: invalid int value: 'x'"),  # argparse's error: one line too
 ])
 def test_cli_bad_input_exits_2_with_one_line(args, message):
     r = subprocess.run([sys.executable, "-m", "sim.world", *args], cwd=REPO, capture_output=True, text=True,
