@@ -46,13 +46,15 @@ def parse(argv=None):
 def main(argv=None) -> int:
     args = parse(argv)
     if args.evaluate:
-        from sim.evaluate import VARIANTS, EvalSettings, evaluate, format_table
-        out = writable_dir(args.out or Path("runs") / args.task / "eval")
+        from sim.evaluate import VARIANTS, EvalSettings, evaluate, format_table, model_dir_for
+        from sim.model_check import check_models_for_task
         models = args.models or Path("runs") / args.task / "models"
         variants = tuple(args.variants) if args.variants else tuple(v.name for v in VARIANTS)
         unknown = [v for v in variants if v not in {x.name for x in VARIANTS}]
         if unknown:
             raise UsageError(f"--variants: unknown {unknown}; choose from {[v.name for v in VARIANTS]}")
+        check_models_for_task([model_dir_for(models, v) for v in VARIANTS if v.name in variants], args.task)
+        out = writable_dir(args.out or Path("runs") / args.task / "eval")
         try:
             from tqdm import tqdm as progress
         except ImportError:
@@ -66,12 +68,9 @@ def main(argv=None) -> int:
         return 0
 
     from sim.evaluate import plan_scenario
+    from sim.model_check import load_checked_model
     from sim.scenarios import draw_scenario
-    cfg_path = args.model / "config.json"
-    if not cfg_path.is_file():
-        raise UsageError(f"--model {args.model}: no config.json (train one with train.py)")
-    task = json.loads(cfg_path.read_text()).get("task", {}) or {}
-    task_name = task.get("name", "powder")
+    _, task_name = load_checked_model(args.model)  # landmarks, robot, task: before any simulation
     out = writable_dir(args.out or args.model / "plans")
     scenario = draw_scenario(task_name, args.scenario_seed)
     report, res, model = plan_scenario(args.model, scenario, args.roadmap_size, gui=args.gui,

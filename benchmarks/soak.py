@@ -55,18 +55,18 @@ def main(argv=None) -> int:
     import torch
 
     from lfd.kinematics import KinematicModel
-    from lfd.model import TaskModel
     from lfd.task_planner import TaskPlanner, TaskPlannerSettings
     from sim import layout as L
     from sim.collision import make_collision_fns
+    from sim.model_check import load_checked_model
     from sim.scenarios import draw_scenario
     from sim.world import World
 
     torch.set_num_threads(1)
     rng = np.random.default_rng(args.seed)
-    model = TaskModel.load(args.model)
+    model, task = load_checked_model(args.model)  # its landmarks and robot are the scenario's
     model.kin = KinematicModel.from_spec(model.robot, dtype=model.dtype)
-    scenario = draw_scenario(model.task.name if model.task else "powder", args.seed)
+    scenario = draw_scenario(task, args.seed)
     lat, statuses, edges = [], {}, []
     with World(scenario.task, scenario=scenario.placements, n_particles=0) as world:
         fns = make_collision_fns(world)

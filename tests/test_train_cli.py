@@ -14,6 +14,7 @@ import shutil
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +22,8 @@ import pytest
 
 from lfd.checkpoint import FitProgress, save_checkpoint
 from lfd.demos import DemoSet, save_demonstration, save_demos
-from lfd.robots import BAXTER_LEFT
+from lfd.robots import BAXTER_LEFT, RobotSpec
+from lfd.tasks import POWDER
 from helpers import rewrite_npz, small_demoset, synthetic_demo_dir
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -110,6 +112,35 @@ def _plan(*args, model=None):
     return setup
 
 
+def _model(d: Path, names=("bowl", "cup"), robot=BAXTER_LEFT, task=POWDER, where="m") -> Path:
+    """A small valid model (T=4) that keeps the landmarks ``names``, saved into ``d / where``."""
+    import torch
+    from lfd.model import TaskModel
+    T, F, z = 4, len(robot.joint_names) + 3, len(names)
+    m = TaskModel(torch.zeros(3, dtype=torch.float64), torch.full((z,), 1.0 / z, dtype=torch.float64),
+                  torch.zeros(T, F, dtype=torch.float64), torch.eye(F, dtype=torch.float64).repeat(T, 1, 1),
+                  torch.full((T, 3), math.log(1 / 3), dtype=torch.float64), names, robot, task=task,
+                  covariance="block")
+    m.save(d / where)
+    return d / where
+
+
+def _other_robot(d):
+    arm = RobotSpec(name="other_arm", urdf=BAXTER_LEFT.urdf, end_link="tool0",
+                    joint_names=tuple(f"joint_{i}" for i in range(6)))
+    return _model(d, names=("bowl",), robot=arm)
+
+
+def _evaluate_models(task: str, model_task=POWDER, names=("bowl",)):
+    """plan.py --evaluate --task ``task`` on a --models folder whose learned+learned model was
+    trained on ``model_task`` with ``names``."""
+    def setup(d: Path, good: Path):
+        _model(d, names=names, task=model_task, where="models/learn-learn")
+        return ["plan.py", "--evaluate", "--task", task, "--models", str(d / "models"), "--variants",
+                "learned+learned", "--scenarios", "1", "--workers", "1", "--out", str(d / "eval")]
+    return setup
+
+
 def _incomplete_model(d):
     (d / "m").mkdir()
     (d / "m" / "config.json").write_text(json.dumps({"format": "lfd-task-model/1", "task": {"name": "powder"}}))
@@ -152,7 +183,19 @@ CASES = [
     ("plan-model-incomplete", _plan(model=_incomplete_model), "not an lfd task model (missing model.pt)"),
     ("plan-evaluate-no-task", _plan("--evaluate"), "--evaluate needs --task"),
     ("plan-roadmap-size", _plan("--roadmap-size", "5", model=lambda d: d), "--roadmap-size must be at least 10"),
+    # plan.py with a model that cannot plan in the simulated scenarios: refused before any simulation
+    ("plan-model-other-landmarks", _plan(model=_model),
+     "needs landmark(s) ['cup'], which the powder scenarios do not sense; they provide ['bowl', 'marker_1', "),
+    ("plan-model-other-robot", _plan(model=_other_robot), "learned for robot 'other_arm' (end link 'tool0'"),
+    ("plan-model-other-task", _plan(model=lambda d: _model(d, names=("bowl",), task=replace(POWDER, name="stir"))),
+     "a model of task 'stir'; the simulator has scenarios of powder, pour only"),
+    ("plan-evaluate-other-landmarks", _evaluate_models("powder", names=("bowl", "cup")),
+     "learn-learn: the model needs landmark(s) ['cup']"),
+    ("plan-evaluate-other-task", _evaluate_models("pour"), "learn-learn: a model of task 'powder', not 'pour'"),
 ]
+NO_OUTPUT = {  # refused before anything was simulated or written
+    "plan-model-other-landmarks": "m/plans", "plan-model-other-robot": "m/plans", "plan-model-other-task": "m/plans",
+    "plan-evaluate-other-landmarks": "eval", "plan-evaluate-other-task": "eval"}
 FRAGMENT_EXTRA = {"resume-no-checkpoint": "no checkpoint to resume from"}
 
 
@@ -161,15 +204,18 @@ def results(tmp_path_factory):
     """Run every case (3 subprocesses at a time); ``{id: CompletedProcess}``."""
     good = tmp_path_factory.mktemp("good")
     save_demos(good, _demoset())
-    argvs = {}
+    argvs, dirs = {}, {}
     for cid, setup, _ in CASES:
-        argvs[cid] = setup(tmp_path_factory.mktemp(cid), good)
+        dirs[cid] = tmp_path_factory.mktemp(cid)
+        argvs[cid] = setup(dirs[cid], good)
 
     def run(argv):
         return subprocess.run([sys.executable, *argv], capture_output=True, text=True, cwd=ROOT, timeout=180)
 
     with ThreadPoolExecutor(max_workers=3) as pool:
         done = dict(zip(argvs, pool.map(run, argvs.values())))
+    for cid, r in done.items():
+        r.folder = dirs[cid]
     return done
 
 
@@ -189,6 +235,8 @@ def test_bad_input_one_line_exit_2(results, cid, fragment):
     assert ": error: " in lines[0]
     assert fragment in lines[0], lines[0]
     assert FRAGMENT_EXTRA.get(cid, "") in lines[0]
+    if cid in NO_OUTPUT:
+        assert not (r.folder / NO_OUTPUT[cid]).exists()
 
 
 # ----------------------------------------------------------------------------- numerical trouble

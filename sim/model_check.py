@@ -1,0 +1,78 @@
+"""Can a learned model plan in the simulated scenarios? Checked before any simulation starts.
+
+A model plans only where every landmark it kept is sensed, with the arm it was learned on. A
+model trained on another landmark set (another task's demonstrations, your own objects) or for
+another robot would otherwise build a roadmap and report ``missing_landmark`` (or fail inside
+the simulator); ``plan.py`` and ``benchmarks/soak.py`` ask here first, so it is one line on stderr
+and exit status 2 (``lfd.cli.UsageError``) naming what is missing and what the scenarios provide.
+"""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+
+from lfd.cli import UsageError
+from lfd.model import TaskModel
+from lfd.robots import RobotSpec
+
+__all__ = ["scenario_provides", "model_mismatch", "load_checked_model", "check_models_for_task"]
+
+
+def scenario_provides(task: str) -> tuple[tuple[str, ...], RobotSpec]:
+    """``(landmark names, robot)`` of the simulated ``task``: what ``World(task)`` senses and loads."""
+    from sim.world import LANDMARKS, World
+    return tuple(LANDMARKS[task]), inspect.signature(World).parameters["robot"].default
+
+
+def model_mismatch(model: TaskModel, task: str) -> str | None:
+    """Why ``model`` cannot plan in the ``task`` scenarios (``None`` when it can)."""
+    from sim.world import TASKS
+    if task not in TASKS:
+        return f"a model of task {task!r}; the simulator has scenarios of {', '.join(TASKS)} only"
+    names, robot = scenario_provides(task)
+    mine = model.robot
+    if (mine.end_link, tuple(mine.joint_names)) != (robot.end_link, tuple(robot.joint_names)):
+        return (f"learned for robot {mine.name!r} (end link {mine.end_link!r}, joints {list(mine.joint_names)}); "
+                f"the {task} scenarios simulate {robot.name!r} (end link {robot.end_link!r}, joints "
+                f"{list(robot.joint_names)})")
+    missing = [n for n in model.landmark_names if n not in names]
+    if missing:
+        return (f"the model needs landmark(s) {missing}, which the {task} scenarios do not sense; "
+                f"they provide {list(names)} (was it trained on other demonstrations' landmarks?)")
+    return None
+
+
+def _task_name(model: TaskModel) -> str:
+    return model.task.name if model.task is not None else "powder"
+
+
+def load_checked_model(model_dir: str | Path, task: str | None = None,
+                       what: str = "--model") -> tuple[TaskModel, str]:
+    """Load the model in ``model_dir`` and check it fits the scenarios of ``task`` (default: the
+    model's own task, powder when it names none); ``(model, task)``.
+
+    Raises ``UsageError`` (or ``lfd.model.ModelFormatError``) with a message that starts
+    ``"{what} {model_dir}: "``.
+    """
+    model_dir = Path(model_dir)
+    if not (model_dir / "config.json").is_file():
+        raise UsageError(f"{what} {model_dir}: no config.json (train one with train.py)")
+    model = TaskModel.load(model_dir)
+    own = _task_name(model)
+    if task is not None and own != task:
+        raise UsageError(f"{what} {model_dir}: a model of task {own!r}, not {task!r}")
+    task = own
+    why = model_mismatch(model, task)
+    if why:
+        raise UsageError(f"{what} {model_dir}: {why}")
+    return model, task
+
+
+def check_models_for_task(model_dirs, task: str, what: str = "--models") -> None:
+    """Check every already trained model among ``model_dirs`` (folders holding ``model.pt`` and
+    ``config.json``, as ``sim.evaluate.ensure_model`` counts them) against the ``task`` scenarios;
+    the other folders are left to be trained."""
+    for d in map(Path, model_dirs):
+        if (d / "model.pt").is_file() and (d / "config.json").is_file():
+            load_checked_model(d, task, what=what)
