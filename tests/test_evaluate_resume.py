@@ -1,0 +1,158 @@
+"""``plan.py --evaluate`` resumes: finished runs in ``runs.jsonl`` are kept and never run again.
+
+``sim.evaluate.evaluate`` runs the jobs in this process when ``workers=1``, looking ``run_one`` up
+in its module, so a fast fake (no PyBullet, no planning) stands in for the minutes-long real runs
+and records which (variant, scenario) pairs were asked for. Models are two empty files per
+variant: ``ensure_model`` only checks that they exist.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+import sim.evaluate as ev
+from sim.scenarios import draw_scenarios
+
+TASK = "powder"
+VARIANTS = ("learned+learned", "manual+manual")
+N = 3
+
+
+def _settings(**kw) -> ev.EvalSettings:
+    return ev.EvalSettings(task=TASK, n_scenarios=N, seed=0, roadmap_size=10, workers=1,
+                           variants=VARIANTS, **kw)
+
+
+@pytest.fixture
+def models(tmp_path) -> Path:
+    root = tmp_path / "models"
+    for v in ev.VARIANTS:
+        d = ev.model_dir_for(root, v)
+        d.mkdir(parents=True, exist_ok=True)  # two variants share a model
+        (d / "model.pt").write_bytes(b"")
+        (d / "config.json").write_text("{}")
+    return root
+
+
+def _row(variant: str, scenario: int, success: bool = True) -> dict:
+    """A run as ``run_one`` reports it (the keys ``summarize`` reads)."""
+    return {"variant": variant, "scenario": scenario, "success": success, "reason": "fake",
+            "contacts": [], "fraction_in_bowl": 1.0 if success else 0.0, "initial_ms": 5.0,
+            "replan_ms": [1.0, 2.0], "wall_s": 0.0, "roadmap_vertices": 10}
+
+
+class FakeRunOne:
+    """Records ``(variant, scenario)`` of every call; raises ``KeyboardInterrupt`` on call
+    number ``interrupt_at`` (1-based) as Ctrl-C would in the middle of a run."""
+
+    def __init__(self, interrupt_at: int | None = None):
+        self.calls: list[tuple[str, int]] = []
+        self.interrupt_at = interrupt_at
+
+    def __call__(self, task, scenario, variant, model_dir, roadmap_size, video_path=None, with_path=False):
+        assert task == TASK and Path(model_dir).name == variant.model_key
+        if self.interrupt_at is not None and len(self.calls) + 1 == self.interrupt_at:
+            raise KeyboardInterrupt
+        self.calls.append((variant.name, scenario.seed))
+        return _row(variant.name, scenario.seed)
+
+
+def _all_pairs() -> list[tuple[str, int]]:
+    seeds = [sc.seed for sc in draw_scenarios(TASK, N, 0)]
+    return [(v, s) for v in VARIANTS for s in seeds]
+
+
+def _logged(out: Path) -> list[tuple[str, int]]:
+    pairs = []
+    for line in (out / "runs.jsonl").read_text().splitlines():
+        try:
+            r = json.loads(line)
+        except ValueError:
+            continue
+        pairs.append((r["variant"], r["scenario"]))
+    return pairs
+
+
+def _check_results(out: Path, payload: dict) -> None:
+    on_disk = json.loads((out / "results.json").read_text())
+    assert on_disk["variants"].keys() == payload["variants"].keys() == set(VARIANTS)
+    seeds = sorted(s for _, s in _all_pairs()[:N])
+    for name in VARIANTS:
+        v = on_disk["variants"][name]
+        assert v["n_scenarios"] == N
+        assert sorted(r["scenario"] for r in v["scenarios"]) == seeds
+
+
+def test_interrupted_evaluation_resumes_with_only_the_missing_runs(tmp_path, models, monkeypatch):
+    out = tmp_path / "eval"
+    first = FakeRunOne(interrupt_at=3)
+    monkeypatch.setattr(ev, "run_one", first)
+    with pytest.raises(KeyboardInterrupt):
+        ev.evaluate(_settings(), out, models)
+    assert first.calls == _all_pairs()[:2]
+    assert _logged(out) == first.calls  # each finished run is on disk at once
+    assert not (out / "results.json").exists()
+
+    second = FakeRunOne()
+    monkeypatch.setattr(ev, "run_one", second)
+    payload = ev.evaluate(_settings(), out, models)
+    assert second.calls == _all_pairs()[2:]  # only the missing pairs, none twice
+    assert sorted(_logged(out)) == sorted(_all_pairs())
+    _check_results(out, payload)
+
+    third = FakeRunOne()  # everything done: nothing runs, the table is rebuilt from the log
+    monkeypatch.setattr(ev, "run_one", third)
+    assert ev.evaluate(_settings(), out, models)["variants"] == payload["variants"]
+    assert third.calls == []
+
+
+def test_preseeded_log_is_kept_and_counted(tmp_path, models, monkeypatch):
+    out = tmp_path / "eval"
+    out.mkdir()
+    pairs = _all_pairs()
+    kept = [pairs[0], pairs[4]]
+    other_set = ("learned+learned", 999_999)  # a scenario of another seed set: kept, not counted
+    rows = [_row(v, s, success=False) for v, s in kept] + [_row(*other_set)]
+    (out / "runs.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    fake = FakeRunOne()
+    monkeypatch.setattr(ev, "run_one", fake)
+    payload = ev.evaluate(_settings(), out, models)
+    assert fake.calls == [p for p in pairs if p not in kept]
+    _check_results(out, payload)
+    # the pre-seeded rows (failures) are the ones counted, not re-run successes
+    assert payload["variants"]["learned+learned"]["success_rate"] == pytest.approx(2 / 3)
+    assert payload["variants"]["manual+manual"]["success_rate"] == pytest.approx(2 / 3)
+
+
+def test_truncated_last_line_does_not_stop_the_resume(tmp_path, models, monkeypatch):
+    """A run cut while writing its line (``kill -9``) is simply run again."""
+    out = tmp_path / "eval"
+    out.mkdir()
+    pairs = _all_pairs()
+    whole = json.dumps(_row(*pairs[0]))
+    cut = json.dumps(_row(*pairs[1]))[:40]  # half-written, no newline
+    (out / "runs.jsonl").write_text(whole + "\n" + cut)
+    fake = FakeRunOne()
+    monkeypatch.setattr(ev, "run_one", fake)
+    payload = ev.evaluate(_settings(), out, models)
+    assert fake.calls == pairs[1:]
+    _check_results(out, payload)
+
+
+@pytest.mark.xfail(strict=True, reason="sim/evaluate.py appends the first new run to the end of a cut "
+                   "line, so that run's record is unreadable and it is run again on the next resume; "
+                   "fix: start a new line before appending when runs.jsonl does not end with a newline")
+def test_run_after_a_truncated_line_is_not_lost(tmp_path, models, monkeypatch):
+    out = tmp_path / "eval"
+    out.mkdir()
+    pairs = _all_pairs()
+    (out / "runs.jsonl").write_text(json.dumps(_row(*pairs[0])) + "\n" + json.dumps(_row(*pairs[1]))[:40])
+    monkeypatch.setattr(ev, "run_one", FakeRunOne())
+    ev.evaluate(_settings(), out, models)
+    again = FakeRunOne()
+    monkeypatch.setattr(ev, "run_one", again)
+    ev.evaluate(_settings(), out, models)
+    assert again.calls == []
