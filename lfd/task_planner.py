@@ -47,6 +47,9 @@ class TaskPlannerSettings:
     block, random t), the rest uniform within the joint limits (``sample_fn``): the region
     samples join the chains to each other and let paths detour around obstacles the chains run
     into, the uniform ones keep every configuration reachable (asymptotic optimality);
+    posture_share, posture_spread: share of the biased vertices whose chains move the sampled
+    arm posture by ``N(0, posture_spread^2)`` rad per joint (one offset per chain), reaching the
+    same tool points with the arm elsewhere;
     regrow_distance: landmark motion (m) that triggers new biased samples; regrow_vertices: how
     many; max_vertices: the roadmap never grows past this (default 3 x n_vertices), so a long run
     of landmark moves cannot grow memory without bound; fk_cache_rows: rows of cached FK at most;
@@ -56,6 +59,8 @@ class TaskPlannerSettings:
     bias_fraction: float = 0.6
     region_fraction: float = 0.67
     region_inflation: float = 2.0
+    posture_share: float = 0.33
+    posture_spread: float = 0.4
     regrow_distance: float = 0.10
     regrow_vertices: int = 400
     max_vertices: int | None = None
@@ -72,6 +77,9 @@ class TaskPlannerSettings:
         if not 0.0 <= self.region_fraction <= 1.0 or self.region_inflation <= 0:
             raise ValueError("region_fraction must be in [0, 1] and region_inflation > 0, got "
                              f"{self.region_fraction}, {self.region_inflation}")
+        if not 0.0 <= self.posture_share <= 1.0 or self.posture_spread < 0:
+            raise ValueError("posture_share must be in [0, 1] and posture_spread >= 0, got "
+                             f"{self.posture_share}, {self.posture_spread}")
         if self.regrow_distance <= 0 or self.regrow_vertices < 0:
             raise ValueError("regrow_distance must be > 0 and regrow_vertices >= 0, got "
                              f"{self.regrow_distance}, {self.regrow_vertices}")
@@ -131,7 +139,7 @@ def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.
 
 def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
                           generator: torch.Generator, step_jitter: float = 0.3,
-                          project_iters: int = 10):
+                          project_iters: int = 10, posture_spread: float = 0.0):
     """About ``n`` configurations where the model wants the robot for ``landmarks``.
 
     ``landmarks``: ``(Z, 4, 4)`` kept landmarks in model order. The samples come as *chains*, one
@@ -157,6 +165,9 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
     z = torch.randn(chains, 1, F, generator=generator, dtype=model.dtype)
     z = (z + step_jitter * torch.randn(chains, T, F, generator=generator, dtype=model.dtype)).to(model.device)
     f = model.mu[None] + torch.einsum("tij,ctj->cti", sigma, z)  # (C, T, F)
+    if posture_spread > 0:  # another arm posture for the whole chain (e.g. the elbow elsewhere)
+        offset = posture_spread * torch.randn(chains, 1, d, generator=generator, dtype=model.dtype)
+        f = torch.cat([f[..., :d] + offset.to(model.device), f[..., d:]], dim=-1)
     q_rest = torch.maximum(torch.minimum(f[..., :d], kin.upper), kin.lower)  # (C, T, d)
     T_world_virt = torch.linalg.inv(model.K_virt_inv(landmarks))  # (4, 4)
     p_world = f[..., d:] @ T_world_virt[:3, :3].T + T_world_virt[:3, 3]  # (C, T, 3)
@@ -319,16 +330,25 @@ class TaskPlanner:
         return step_nll
 
     def _add_biased(self, n: int) -> int:
-        """Add about ``n`` biased vertices (collision-free ones) and their chain edges."""
-        Q, valid, steps = biased_configurations(self.model, self._landmarks, n, self._gen)
-        free = valid.copy()
-        free[valid] = ~self.roadmap.in_collision(Q[valid])
-        ids = np.full(len(Q), -1)
-        ids[free] = self.roadmap.add_vertices(Q[free], check=False)
-        pairs = chain_edges(free, steps)
-        self.roadmap.add_edges(ids[pairs])
-        self.stats["vertices_added"] += int(free.sum())
-        return int(free.sum())
+        """Add about ``n`` biased vertices (collision-free ones) and their chain edges: a share
+        ``posture_share`` of them from chains whose arm posture is moved by ``posture_spread``
+        (an obstacle may sit where the demonstrated elbow was)."""
+        s = self.settings
+        n_moved = int(round(s.posture_share * n))
+        added = 0
+        for m, spread in ((n - n_moved, 0.0), (n_moved, s.posture_spread)):
+            if m <= 0:
+                continue
+            Q, valid, steps = biased_configurations(self.model, self._landmarks, m, self._gen,
+                                                    posture_spread=spread)
+            free = valid.copy()
+            free[valid] = ~self.roadmap.in_collision(Q[valid])
+            ids = np.full(len(Q), -1)
+            ids[free] = self.roadmap.add_vertices(Q[free], check=False)
+            self.roadmap.add_edges(ids[chain_edges(free, steps)])
+            added += int(free.sum())
+        self.stats["vertices_added"] += added
+        return added
 
     def _build(self) -> None:
         s = self.settings

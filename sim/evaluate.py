@@ -168,8 +168,9 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     scenarios = draw_scenarios(settings.task, settings.n_scenarios, settings.seed)
     log = out_dir / "runs.jsonl"
     done = {}
-    if log.is_file():
-        for line in log.read_text().splitlines():
+    text = log.read_text() if log.is_file() else ""
+    if text:
+        for line in text.splitlines():
             try:
                 r = json.loads(line)
                 done[(r["variant"], r["scenario"])] = r
@@ -186,6 +187,8 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     total = len(variants) * len(scenarios)
     bar = progress(total=total, initial=total - len(jobs)) if progress else None
     with log.open("a") as fh:
+        if text and not text.endswith("\n"):
+            fh.write("\n")  # the last line was cut by a kill: new runs start their own line
         if settings.workers <= 1:
             for job in jobs:
                 r = run_one(*job)

@@ -141,8 +141,16 @@ def expected_sojourn(log_trans: np.ndarray, offsets, dt: float) -> np.ndarray:
     return dt / np.clip(1.0 - p_stay, 1e-3, 1.0)
 
 
+TOUCH_DISTANCE = 0.001  # m: a contact point at most this far apart is a touch
+
+
 class _ContactLog:
-    """Contacts of the left arm and the tool with anything but particles."""
+    """Contacts of the left arm and the tool with anything but particles.
+
+    PyBullet reports contact points up to its contact-breaking threshold (2 cm) *before* the
+    bodies meet, with a positive distance; only points at most ``TOUCH_DISTANCE`` apart (touching
+    or penetrating) are logged, so a close pass is not a collision.
+    """
 
     def __init__(self, world):
         self.world, c = world, world.client
@@ -158,15 +166,17 @@ class _ContactLog:
 
     def poll(self, t_s: float) -> None:
         for cp in p.getContactPoints(bodyA=self.world.robot, physicsClientId=self.c):
-            body, link = cp[2], cp[3]
-            if body == self.world.robot or body in self.skip or link not in self.arm_links:
+            body, link, distance = cp[2], cp[3], cp[8]
+            if (body == self.world.robot or body in self.skip or link not in self.arm_links
+                    or distance > TOUCH_DISTANCE):
                 continue
             key = (body, link)
             if key in self._seen:
                 continue
             self._seen.add(key)
             self.events.append({"body": self.names.get(body, str(body)),
-                                "link": self.link_names.get(link, str(link)), "t_s": round(t_s, 3)})
+                                "link": self.link_names.get(link, str(link)), "t_s": round(t_s, 3),
+                                "distance_m": round(float(distance), 4)})
 
 
 def _relevant(names, poses, keep) -> np.ndarray:

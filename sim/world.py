@@ -124,7 +124,11 @@ class World:
                 p.resetJointState(self.robot, self.joint_index[name], v, physicsClientId=c)
         for name in ("l_gripper_l_finger_joint", "l_gripper_r_finger_joint"):
             if name in self.joint_index:
-                p.resetJointState(self.robot, self.joint_index[name], L.GRIPPER_FINGERS, physicsClientId=c)
+                # the fingers slide in mirrored directions: the right one's range is [-0.021, 0]
+                lo, hi = p.getJointInfo(self.robot, self.joint_index[name], physicsClientId=c)[8:10]
+                opening = L.GRIPPER_FINGERS if hi > 0 else -L.GRIPPER_FINGERS
+                p.resetJointState(self.robot, self.joint_index[name], float(np.clip(opening, lo, hi)),
+                                  physicsClientId=c)
         self._hold_all_joints()
         self.floor = assets.build_floor(c)
         self.table = assets.build_table(c)

@@ -142,9 +142,6 @@ def test_truncated_last_line_does_not_stop_the_resume(tmp_path, models, monkeypa
     _check_results(out, payload)
 
 
-@pytest.mark.xfail(strict=True, reason="sim/evaluate.py appends the first new run to the end of a cut "
-                   "line, so that run's record is unreadable and it is run again on the next resume; "
-                   "fix: start a new line before appending when runs.jsonl does not end with a newline")
 def test_run_after_a_truncated_line_is_not_lost(tmp_path, models, monkeypatch):
     out = tmp_path / "eval"
     out.mkdir()

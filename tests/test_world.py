@@ -36,6 +36,32 @@ def test_tool_frame_is_gripper_frame_and_level_at_home(world):
     assert world.T_world_tool()[2, 3] > L.TABLE_TOP_Z + L.SOURCE_HEIGHT
 
 
+def test_every_joint_within_its_limits_and_still_there_after_motion(world):
+    """Joints the arm does not command (fingers, head, right arm) start inside their URDF limits
+    and stay put while the arm moves: the collision checker's copy of the robot assumes so (a
+    finger reset outside its range slid 1 cm under physics and touched obstacles unchecked)."""
+    c = world.client
+    movable = [j for j in range(p.getNumJoints(world.robot, physicsClientId=c))
+               if p.getJointInfo(world.robot, j, physicsClientId=c)[2] in (p.JOINT_REVOLUTE, p.JOINT_PRISMATIC)
+               and j not in world.arm_joints]
+    before = {}
+    for j in movable:
+        lo, hi = p.getJointInfo(world.robot, j, physicsClientId=c)[8:10]
+        before[j] = p.getJointState(world.robot, j, physicsClientId=c)[0]
+        if hi > lo:
+            assert lo - 1e-9 <= before[j] <= hi + 1e-9, p.getJointInfo(world.robot, j, physicsClientId=c)[1]
+    world.set_q(L.HOME_Q)
+    for k in range(240):
+        q = L.HOME_Q.copy()
+        q[0] += 0.4 * (k + 1) / 240
+        q[6] += 0.8 * (k + 1) / 240
+        world.command_q(q)
+        world.step()
+    for j in movable:
+        assert abs(p.getJointState(world.robot, j, physicsClientId=c)[0] - before[j]) < 1e-3
+    world.set_q(L.HOME_Q)
+
+
 def test_manual_tool_points_match_tool_geometry():
     assert POWDER.manual_tool_point == L.SPOON_TIP
     assert POUR.manual_tool_point == L.PITCHER_SPOUT_LIP
