@@ -39,14 +39,18 @@ STATUSES = ("ok", "no_path", "start_in_collision", "goal_in_collision", "missing
 class PlannerSettings:
     """cost: CostSettings; max_expansions: search budget (product nodes), past which ``plan``
     returns 'budget_exceeded'; connect_k: neighbours tried for the start/goal configuration
-    (None: k_PRM*(n + 1))."""
+    (None: k_PRM*(n + 1)); max_path_checks: searches at most per plan when edges are checked
+    on the path (``cost.edge_checks == "path"``), past which ``plan`` returns 'budget_exceeded'."""
     cost: CostSettings = CostSettings()
     max_expansions: int = 500_000
     connect_k: int | None = None
+    max_path_checks: int = 500
 
     def __post_init__(self):
         if self.max_expansions < 1:
             raise ValueError(f"Expected max_expansions >= 1, got {self.max_expansions}")
+        if self.max_path_checks < 1:
+            raise ValueError(f"Expected max_path_checks >= 1, got {self.max_path_checks}")
         if self.connect_k is not None and self.connect_k < 1:
             raise ValueError(f"Expected connect_k >= 1 or None, got {self.connect_k}")
 
@@ -127,6 +131,35 @@ class ClosedLoopPlanner:
             return
         self.costs.set_step_nll(fn)
 
+    def _search_free_path(self, t_start: int, to_goal: bool):
+        """A* on the product graph; with edges checked on the path (Lazy PRM), check the unchecked
+        roadmap edges of the path found, drop those that collide and search again, until the
+        path is collision-free. Returns ``(path, cost, expanded, searches)``."""
+        rm, lazy = self.roadmap, self.settings.cost.edge_checks == "path"
+        expanded = 0
+        for searches in range(1, self.settings.max_path_checks + 1):
+            res = search(self.costs, START, t_start, GOAL if to_goal else None, self.settings.max_expansions)
+            expanded += res.n_expanded
+            if not lazy or not res.nodes:
+                return res.nodes, res.cost, expanded, searches
+            collided = False
+            for (a, ta), (b, tb) in zip(res.nodes[:-1], res.nodes[1:]):
+                if a >= 0 and b >= 0 and a != b and not rm.edge_free(a, b):
+                    self.costs.drop_edge(a, b)
+                    collided = True
+                    # an obstacle is near: settle every edge of both ends now, so the next
+                    # search does not try their neighbours' colliding edges one by one
+                    for v in (a, b):
+                        before = list(rm.graph.adj[v])
+                        kept = set(rm.free_neighbors(v))
+                        for w in before:
+                            if w not in kept:
+                                self.costs.drop_edge(v, w)
+            if not collided:
+                return res.nodes, res.cost, expanded, searches
+        raise SearchBudgetExceeded(f"no collision-free path after {self.settings.max_path_checks} "
+                                   "searches (each dropped colliding edges)")
+
     def _result(self, status, tic, message="", path=(), cost=math.inf, stats=None) -> PlanResult:
         d = self.roadmap.d
         conf = np.array([self.costs.position(v) for v, _ in path]).reshape(len(path), d)
@@ -171,12 +204,10 @@ class ClosedLoopPlanner:
             if rm.segment_free(q, g):  # a direct start-goal edge when it is free
                 links[START].append(GOAL)
         self.costs.set_temporary(temps, links, in_links)
-        status, message, path, cost, n_exp = "ok", "", (), math.inf, 0
+        status, message, path, cost, n_exp, searches = "ok", "", (), math.inf, 0, 0
         try:
             self.costs.prepare(int(t_current))
-            res = search(self.costs, START, int(t_current), None if g is None else GOAL,
-                         self.settings.max_expansions)
-            path, cost, n_exp = res.nodes, res.cost, res.n_expanded
+            path, cost, n_exp, searches = self._search_free_path(int(t_current), g is not None)
             if not path:
                 status, message = "no_path", "no path to the last time step in the roadmap"
         except SearchBudgetExceeded as e:
@@ -187,7 +218,8 @@ class ClosedLoopPlanner:
                  "points_evaluated": self.costs.counters["points"] - c0["points"],
                  "step_nll_calls": self.costs.counters["calls"] - c0["calls"],
                  "segment_checks": rm.counters["segment_checks"] - seg0,
-                 "expanded": n_exp, "cpu_s": time.process_time() - cpu0}
+                 "expanded": n_exp, "searches": searches if status == "ok" or path else 0,
+                 "cpu_s": time.process_time() - cpu0}
         if status != "ok":
             path, cost = (), math.inf
         return self._result(status, tic, message, path, cost, stats)

@@ -49,7 +49,9 @@ import torch
 from lfd.roadmap import Roadmap
 from lfd.stheuristic import relaxed_cost_to_go, source_bound
 
-__all__ = ["CostSettings", "CostError", "SpatiotemporalCosts"]
+__all__ = ["CostSettings", "CostError", "SpatiotemporalCosts", "EDGE_CHECKS"]
+
+EDGE_CHECKS = ("path", "expand")
 
 
 class CostError(ValueError):
@@ -62,13 +64,18 @@ class CostSettings:
     nll_floor: known lower bound on step_nll (None: estimated from all roadmap vertices);
     heuristic: compute the A* heuristic (needs every vertex's cost, one batched call);
     heuristic_sweeps: move-first relaxations of the heuristic (lfd.stheuristic), 0 = time only;
-    max_batch: rows per step_nll call; dtype: of the tensors passed to step_nll."""
+    max_batch: rows per step_nll call; dtype: of the tensors passed to step_nll;
+    edge_checks: when roadmap edges are collision-checked: "expand" (every edge of a vertex the
+    search expands, before costing it) or "path" (Lazy PRM: the search treats unchecked edges
+    as free and the planner checks only the edges of the path it returns, dropping colliding
+    ones and searching again until the path is free; far fewer checks)."""
     quad_dt: float | None = None
     nll_floor: float | None = None
     heuristic: bool = True
     heuristic_sweeps: int = 3
     max_batch: int = 16384
     dtype: torch.dtype = torch.float64
+    edge_checks: str = "path"
 
     def __post_init__(self):
         if self.quad_dt is not None and not self.quad_dt > 0:
@@ -77,6 +84,8 @@ class CostSettings:
             raise ValueError(f"Expected heuristic_sweeps >= 0, got {self.heuristic_sweeps}")
         if self.max_batch < 1:
             raise ValueError(f"Expected max_batch >= 1, got {self.max_batch}")
+        if self.edge_checks not in EDGE_CHECKS:
+            raise ValueError(f"Expected edge_checks in {EDGE_CHECKS}, got {self.edge_checks!r}")
 
 
 class SpatiotemporalCosts:
@@ -344,7 +353,8 @@ class SpatiotemporalCosts:
     def spatial(self, v: int) -> tuple[list[int], np.ndarray]:
         """Collision-free neighbours of ``v`` and their edge costs ``(deg, T)`` at every step.
 
-        For a roadmap vertex: its roadmap neighbours (unknown edges are collision-checked now);
+        For a roadmap vertex: its roadmap neighbours (unknown edges are collision-checked now
+        with ``edge_checks="expand"``, assumed free with "path");
         for a temporary vertex: the vertices it is joined to. Cached per landmark set (roadmap
         vertices, by edge id) or per plan (temporary vertices).
         """
@@ -357,7 +367,10 @@ class SpatiotemporalCosts:
             return hit
         a = self._adjc.get(v)
         if a is None:
-            nbrs = self.roadmap.free_neighbors(v)
+            if self.settings.edge_checks == "expand":
+                nbrs = self.roadmap.free_neighbors(v)
+            else:  # unchecked edges count as free until a path uses them (see drop_edge)
+                nbrs = list(self.roadmap.graph.adj[v])
             adj = self.roadmap.graph.adj[v]
             a = self._adjc[v] = (nbrs, np.array(nbrs, dtype=int),
                                  np.array([adj[w]["eid"] for w in nbrs], dtype=int))
@@ -372,6 +385,13 @@ class SpatiotemporalCosts:
             self._ehave[eids[miss]] = True
         hit = self._out[v] = (nbrs, self._ecost[eids])
         return hit
+
+    def drop_edge(self, u: int, w: int) -> None:
+        """Forget the cached adjacency of ``u`` and ``w`` after their edge left the roadmap (it
+        collided); the edge-cost cache is keyed by edge id and stays valid for the others."""
+        for v in (u, w):
+            self._adjc.pop(v, None)
+            self._out.pop(v, None)
 
     def has_vertex(self, v: int) -> bool:
         """Whether ``v`` is a roadmap vertex or a current temporary vertex."""

@@ -60,7 +60,7 @@ class TaskPlannerSettings:
     region_fraction: float = 0.67
     region_inflation: float = 2.0
     posture_share: float = 0.33
-    posture_spread: float = 0.4
+    posture_spread: float = 1.0
     regrow_distance: float = 0.10
     regrow_vertices: int = 400
     max_vertices: int | None = None
@@ -165,10 +165,12 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
     z = torch.randn(chains, 1, F, generator=generator, dtype=model.dtype)
     z = (z + step_jitter * torch.randn(chains, T, F, generator=generator, dtype=model.dtype)).to(model.device)
     f = model.mu[None] + torch.einsum("tij,ctj->cti", sigma, z)  # (C, T, F)
-    if posture_spread > 0:  # another arm posture for the whole chain (e.g. the elbow elsewhere)
+    q_rest = f[..., :d]
+    if posture_spread > 0:  # IK starts from and pulls towards another arm posture (the elbow
+        # elsewhere); the projection still aims at the sample and settles in that posture's basin
         offset = posture_spread * torch.randn(chains, 1, d, generator=generator, dtype=model.dtype)
-        f = torch.cat([f[..., :d] + offset.to(model.device), f[..., d:]], dim=-1)
-    q_rest = torch.maximum(torch.minimum(f[..., :d], kin.upper), kin.lower)  # (C, T, d)
+        q_rest = q_rest + offset.to(model.device)
+    q_rest = torch.maximum(torch.minimum(q_rest, kin.upper), kin.lower)  # (C, T, d)
     T_world_virt = torch.linalg.inv(model.K_virt_inv(landmarks))  # (4, 4)
     p_world = f[..., d:] @ T_world_virt[:3, :3].T + T_world_virt[:3, 3]  # (C, T, 3)
     weights = torch.tensor([1, 1, 1, 0, 0, 0], dtype=model.dtype, device=model.device)

@@ -29,7 +29,7 @@ from scipy.interpolate import PchipInterpolator
 from sim import layout as L
 
 __all__ = ["TASK_POINTS", "SHOULDER_XY", "DemoPath", "rotation_level", "tool_rotation", "draw_path",
-           "bowl_frame_path"]
+           "bowl_frame_path", "dump_pose", "DUMP_NOMINAL"]
 
 # Default hidden task points, metres in the gripper frame (see sim.layout for the tools):
 # powder -- the centre of the scoop just above its floor, on the spoon's long axis, i.e. the
@@ -100,6 +100,41 @@ def _facing(bowl_xy) -> float:
     return float(np.arctan2(dy, dx) - NEAR_TURN * near)
 
 
+def _pour_aim(yaw: float, pitch: float, roll: float, tool_point) -> np.ndarray:
+    """``(2,)`` shift of the pouring task point from the bowl's centre, on the table.
+
+    A person aims the stream, not the task point: the liquid leaves between the spout lip and
+    the centre of the cup's open top; that point goes over the bowl's centre when turned, and
+    (measured in replays) the stream reaches the rim's height ``POUR_THROW`` further out along
+    the spout's horizontal direction (gripper -x when level) than that point.
+    """
+    exit_pt = 0.5 * (np.array(L.PITCHER_SPOUT_LIP) + [0.0, L.PITCHER_RIM_Y, L.PITCHER_AXIS_Z])
+    R_t = tool_rotation(yaw, pitch, roll)[0]
+    return -(R_t @ (exit_pt - np.asarray(tool_point)))[:2] + POUR_THROW * np.array([-np.sin(yaw), np.cos(yaw)])
+
+
+# the demonstrator's nominal pose while dumping / pouring: task-point height above the bowl's
+# rim (m) and the roll (deg); _keyframes draws around these
+DUMP_NOMINAL = {"powder": (0.055, 120.0), "pour": (0.135, 105.0)}
+
+
+def dump_pose(task: str, bowl_xy, dyaw: float = 0.0, tool_point=None) -> np.ndarray:
+    """``T_world_tool (4, 4)`` of the demonstrator's nominal dump (powder) or pour over the bowl
+    at ``bowl_xy``, facing ``dyaw`` rad off its usual bearing: the task point's position and the
+    gripper's orientation (the tool frame of the module docstring)."""
+    if task not in DUMP_NOMINAL:
+        raise ValueError(f"task must be 'powder' or 'pour', got {task!r}")
+    above, roll_deg = DUMP_NOMINAL[task]
+    tool_point = TASK_POINTS[task] if tool_point is None else tool_point
+    yaw, roll = _facing(bowl_xy) + dyaw, np.deg2rad(roll_deg)
+    T = np.eye(4)
+    T[:3, :3] = tool_rotation(yaw, 0.0, roll)[0]
+    T[:3, 3] = (bowl_xy[0], bowl_xy[1], L.TABLE_TOP_Z + L.BOWL_HEIGHT + above)
+    if task == "pour":
+        T[:2, 3] += _pour_aim(yaw, 0.0, roll, tool_point)
+    return T
+
+
 def _keyframes(task: str, bowl_xy, start: np.ndarray, rng, tool_point) -> tuple[np.ndarray, list]:
     """Keyframes (K, 6) and per-segment (nominal duration, pause after the keyframe) lists."""
     bx, by = bowl_xy
@@ -125,14 +160,7 @@ def _keyframes(task: str, bowl_xy, start: np.ndarray, rng, tool_point) -> tuple[
         # the cup hangs beside and 0.1 m below the spout: the task point well above the rim
         work = np.array([bx, by, top + L.BOWL_HEIGHT + rng.uniform(0.12, 0.15)]) + np.r_[rng.normal(0, 0.01, 2), 0]
         turned = dict(roll=np.deg2rad(105 + rng.uniform(-8, 8)), pitch=tilt)  # the spout (-x) turned down
-        # a person aims the stream, not the task point: the liquid leaves between the spout lip
-        # and the centre of the cup's open top; that point goes over the bowl's centre when turned
-        exit_pt = 0.5 * (np.array(L.PITCHER_SPOUT_LIP) + [0.0, L.PITCHER_RIM_Y, L.PITCHER_AXIS_Z])
-        R_t = tool_rotation(yaw, turned["pitch"], turned["roll"])[0]
-        work[:2] -= (R_t @ (exit_pt - np.asarray(tool_point)))[:2]
-        # measured in replays: the stream reaches the rim's height POUR_THROW further out along
-        # the spout's horizontal direction (gripper -x when level) than that point
-        work[:2] += POUR_THROW * np.array([-np.sin(yaw), np.cos(yaw)])
+        work[:2] += _pour_aim(yaw, turned["pitch"], turned["roll"], tool_point)
         hold, turn_t = rng.uniform(1.2, 2.0), 2.4
     end = start[:3] + np.r_[rng.normal(0, 0.03, 2), rng.uniform(0.0, 0.05)]
     yaw_mid = 0.5 * (yaw0 + yaw)

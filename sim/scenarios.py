@@ -17,7 +17,11 @@ Drawing rule (also stated in the README):
   other sensed landmarks; vase and scissors/spoon are uniform in the square;
 * scenarios that no plan could solve are not drawn: an obstacle closer than
   ``CLEARANCE`` to the bowl (at either place) or to the source container is redrawn, and so
-  is anything off the table.
+  is anything off the table; so is a scene where the arm cannot hold the tool as the
+  demonstrator does to dump or pour over the bowl (at either place) without touching an
+  obstacle, for any bearing within 30 deg of the demonstrator's (``sim.reach.DumpReach``:
+  seeded IK and the planner's collision check; a low lamp shade between the shoulder and a
+  far bowl does that). No learned model takes part in the drawing.
 
 The same ``(task, seed)`` always gives the same scenario; scenario ``i`` of a set with base
 seed ``S`` uses seed ``S * 100_003 + i``.
@@ -83,10 +87,20 @@ def _clear(xy, radius, others) -> bool:
     return all(np.linalg.norm(np.asarray(xy) - np.asarray(c)) >= radius + r + CLEARANCE for c, r in others)
 
 
-def draw_scenario(task: str, seed: int, time_steps: int = 24) -> Scenario:
-    """The scenario of ``(task, seed)``; see the module docstring for the rule."""
+def draw_scenario(task: str, seed: int, time_steps: int = 24, reach=None) -> Scenario:
+    """The scenario of ``(task, seed)``; see the module docstring for the rule.
+
+    ``reach``: a ``sim.reach.DumpReach`` of ``task`` to reuse (one is made and closed here when
+    None); it never changes which scenario a seed gives.
+    """
     if task not in ("powder", "pour"):
         raise ValueError(f"task must be 'powder' or 'pour', got {task!r}")
+    if reach is None:
+        from sim.reach import DumpReach
+        with DumpReach(task) as own:
+            return draw_scenario(task, seed, time_steps, own)
+    if reach.task != task:
+        raise ValueError(f"reach checks the {reach.task!r} task, not {task!r}")
     rng = np.random.default_rng(seed)
     source = np.asarray(L.SOURCE_DEFAULT_XY, dtype=float)
     source_r = float(np.hypot(*L.SOURCE_HALF_XY))
@@ -129,7 +143,7 @@ def draw_scenario(task: str, seed: int, time_steps: int = 24) -> Scenario:
                     break
                 placements[name] = tuple(xy)
                 taken.append((xy, r))
-        if not ok:
+        if not ok or not all(reach(placements, b) for b, _ in bowls):
             continue
         return Scenario(task=task, seed=int(seed), placements=placements,
                         bowl_after=None if bowl_after is None else tuple(bowl_after),
@@ -141,4 +155,6 @@ def draw_scenarios(task: str, n: int, base_seed: int = 0, time_steps: int = 24) 
     """``n`` scenarios of a set with ``base_seed``."""
     if n < 1:
         raise ValueError(f"the number of scenarios must be at least 1, got {n}")
-    return [draw_scenario(task, base_seed * 100_003 + i, time_steps) for i in range(n)]
+    from sim.reach import DumpReach
+    with DumpReach(task) as reach:
+        return [draw_scenario(task, base_seed * 100_003 + i, time_steps, reach) for i in range(n)]

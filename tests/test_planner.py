@@ -127,11 +127,12 @@ def assert_path_valid(res, rm):
 
 
 # ---------------------------------------------------------------- tests
+@pytest.mark.parametrize("edge_checks", ["path", "expand"])
 @pytest.mark.parametrize("heuristic", [True, False])
-def test_lazy_search_matches_dijkstra_on_the_full_product_graph(toy, heuristic):
+def test_lazy_search_matches_dijkstra_on_the_full_product_graph(toy, heuristic, edge_checks):
     means = arc_means(T2)
     q0, t0 = np.array([-0.7, 0.05]), 0
-    planner = make_planner(toy, means, heuristic=heuristic)
+    planner = make_planner(toy, means, heuristic=heuristic, edge_checks=edge_checks)
     res = planner.plan(q0, t0)
     assert_path_valid(res, toy)
     ref = reference_cost(toy, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2, q0, t0)
@@ -346,12 +347,32 @@ def test_random_problems_match_reference(seed):
     qg = free_point() if seed % 2 == 0 else None
     ref = reference_cost(rm, gaussian_factory()(means), lt, DT, VMAX2, q0, t0, q_goal=qg,
                          quad_dt=0.05)
-    for sweeps in (0, 3):
+    for sweeps, checks in ((0, "path"), (3, "path"), (3, "expand")):
         p = ClosedLoopPlanner(rm, gaussian_factory(), lt, DT, VMAX2, settings=PlannerSettings(
-            cost=CostSettings(heuristic_sweeps=sweeps, quad_dt=0.05)))
+            cost=CostSettings(heuristic_sweeps=sweeps, quad_dt=0.05, edge_checks=checks)))
         p.update_landmarks(means)
         res = p.plan(q0, t0, qg)
         if math.isinf(ref):
             assert res.status == "no_path"
         else:
             assert res.ok and res.cost == pytest.approx(ref, rel=1e-9, abs=1e-9)
+
+
+def test_path_checking_finds_the_same_plan_with_fewer_segment_checks():
+    """Lazy PRM (edges checked on the returned path, colliding ones dropped, search again) gives
+    the cost of checking every expanded vertex's edges, for a fraction of the segment checks."""
+    counts, costs = {}, {}
+    for checks in ("expand", "path"):
+        rng = np.random.default_rng(7)
+        rm = Roadmap.build(lambda n: rng.uniform(-1, 1, (n, 2)), 300, in_box, segment_hits_box)
+        p = make_planner(rm, arc_means(T2), edge_checks=checks)
+        res = p.plan(np.array([-0.7, 0.05]), 0)
+        assert_path_valid(res, rm)
+        counts[checks], costs[checks] = res.stats["segment_checks"], res.cost
+    assert costs["path"] == pytest.approx(costs["expand"], rel=1e-9)
+    assert counts["path"] < 0.5 * counts["expand"]
+
+
+def test_bad_edge_checks_option():
+    with pytest.raises(ValueError, match="edge_checks"):
+        CostSettings(edge_checks="eager")

@@ -1,0 +1,81 @@
+"""Seeded test scenarios: the drawing rule of the README, determinism, and the solvability check."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim import layout as L
+from sim.scenarios import CLEARANCE, LAMP_BOTTOM_RANGE, MIN_BOWL_SOURCE, MIN_MOVE, draw_scenario
+
+SEEDS = range(3)
+
+
+@pytest.fixture(scope="module")
+def reach():
+    from sim.reach import DumpReach
+    with DumpReach("powder") as r:
+        yield r
+
+
+@pytest.fixture(scope="module")
+def powder(reach):
+    return [draw_scenario("powder", s, reach=reach) for s in SEEDS]
+
+
+def _in_square(xy) -> bool:
+    return bool(np.all(np.abs(np.asarray(xy) - L.SQUARE_CENTER_XY) <= L.SQUARE_HALF + 1e-12))
+
+
+def _dist_to_line(pt, a, b) -> float:
+    a, b, pt = (np.asarray(v, dtype=float) for v in (a, b, pt))
+    d = b - a
+    s = np.clip(np.dot(pt - a, d) / np.dot(d, d), 0, 1)
+    return float(np.linalg.norm(a + s * d - pt))
+
+
+def test_same_seed_same_scenario_with_or_without_a_shared_check(reach, powder):
+    assert draw_scenario("powder", 2).to_dict() == powder[2].to_dict()
+    assert draw_scenario("powder", 2, reach=reach).to_dict() == powder[2].to_dict()
+    assert len({str(sc.to_dict()["placements"]) for sc in powder}) == len(powder)
+
+
+def test_powder_scenarios_follow_the_drawing_rule(powder):
+    source = np.asarray(L.SOURCE_DEFAULT_XY)
+    towel_r, bowl_r = L.PAPER_TOWELS_RADIUS, L.BOWL_RADIUS + L.BOWL_WALL
+    for sc in powder:
+        bowl, after = np.asarray(sc.placements["bowl"]), np.asarray(sc.bowl_after)
+        assert _in_square(bowl) and _in_square(after)
+        assert np.linalg.norm(after - bowl) >= MIN_MOVE
+        assert min(np.linalg.norm(bowl - source), np.linalg.norm(after - source)) >= MIN_BOWL_SOURCE
+        towels = np.asarray(sc.placements["paper_towels"])
+        assert _dist_to_line(towels, source, bowl) <= 0.04 + 1e-9      # on the carrying line
+        for b in (bowl, after):
+            assert np.linalg.norm(towels - b) >= towel_r + bowl_r + CLEARANCE - 1e-9
+        lamp = np.asarray(sc.placements["lamp_shade"])
+        assert _dist_to_line(lamp[:2], source, bowl) <= 0.05 + 1e-9
+        assert LAMP_BOTTOM_RANGE[0] <= lamp[2] - L.TABLE_TOP_Z <= LAMP_BOTTOM_RANGE[1]
+        assert sc.move_at_step == 24 // 4
+        assert sum(k.startswith("marker_") for k in sc.placements) == 4
+
+
+def test_pour_scenarios_place_the_other_landmarks_and_do_not_move_the_bowl():
+    sc = draw_scenario("pour", 0)
+    assert sc.bowl_after is None and sc.move_at_step is None
+    assert {"bowl", "paper_towels", "lamp_shade", "vase", "scissors", "spoon"} <= set(sc.placements)
+
+
+def test_dump_reach_refuses_a_bowl_under_a_low_obstacle_and_accepts_it_in_the_open(reach):
+    bowl = (0.82, 0.35)
+    assert reach({}, bowl)
+    # the lamp shade lowered over the bowl: its rim 8 cm above the table, no tool fits in between
+    blocked = {"lamp_shade": (bowl[0], bowl[1], L.TABLE_TOP_Z + 0.08)}
+    assert not reach(blocked, bowl)
+    assert reach({}, bowl)  # and nothing of the blocked scene stays behind
+
+
+def test_bad_scenario_arguments(reach):
+    with pytest.raises(ValueError, match="task must be"):
+        draw_scenario("soup", 0)
+    with pytest.raises(ValueError, match="reach checks the 'powder' task"):
+        draw_scenario("pour", 0, reach=reach)
