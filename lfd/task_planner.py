@@ -49,7 +49,9 @@ class TaskPlannerSettings:
     into, the uniform ones keep every configuration reachable (asymptotic optimality);
     posture_share, posture_spread: share of the biased vertices whose chains move the sampled
     arm posture by ``N(0, posture_spread^2)`` rad per joint (one offset per chain), reaching the
-    same tool points with the arm elsewhere;
+    same tool points with the arm elsewhere; min_free_per_step, extra_posture_rounds: while some
+    time step has fewer than ``min_free_per_step`` collision-free biased vertices (obstacles where
+    the demonstrated arm goes), up to ``extra_posture_rounds`` more such posture batches are drawn;
     regrow_distance: landmark motion (m) that triggers new biased samples; regrow_vertices: how
     many; max_vertices: the roadmap never grows past this (default 3 x n_vertices), so a long run
     of landmark moves cannot grow memory without bound; fk_cache_rows: rows of cached FK at most;
@@ -61,6 +63,8 @@ class TaskPlannerSettings:
     region_inflation: float = 2.0
     posture_share: float = 0.33
     posture_spread: float = 1.0
+    min_free_per_step: int = 3
+    extra_posture_rounds: int = 3
     regrow_distance: float = 0.10
     regrow_vertices: int = 400
     max_vertices: int | None = None
@@ -77,6 +81,9 @@ class TaskPlannerSettings:
         if not 0.0 <= self.region_fraction <= 1.0 or self.region_inflation <= 0:
             raise ValueError("region_fraction must be in [0, 1] and region_inflation > 0, got "
                              f"{self.region_fraction}, {self.region_inflation}")
+        if self.min_free_per_step < 0 or self.extra_posture_rounds < 0:
+            raise ValueError("min_free_per_step and extra_posture_rounds must be >= 0, got "
+                             f"{self.min_free_per_step}, {self.extra_posture_rounds}")
         if not 0.0 <= self.posture_share <= 1.0 or self.posture_spread < 0:
             raise ValueError("posture_share must be in [0, 1] and posture_spread >= 0, got "
                              f"{self.posture_share}, {self.posture_spread}")
@@ -331,16 +338,24 @@ class TaskPlanner:
             return model.step_nll(Q, fk(Q), landmarks)
         return step_nll
 
-    def _add_biased(self, n: int) -> int:
+    def _add_biased(self, n: int, budget: int | None = None) -> int:
         """Add about ``n`` biased vertices (collision-free ones) and their chain edges: a share
         ``posture_share`` of them from chains whose arm posture is moved by ``posture_spread``
-        (an obstacle may sit where the demonstrated elbow was)."""
+        (an obstacle may sit where the demonstrated elbow was), and extra posture rounds while
+        some step lacks free vertices, as long as the samples stay within ``budget`` (default
+        ``2 n``)."""
         s = self.settings
         n_moved = int(round(s.posture_share * n))
+        T = self.model.mu.shape[0]
+        per_step = np.zeros(T, dtype=int)  # collision-free biased vertices per time step
         added = 0
-        for m, spread in ((n - n_moved, 0.0), (n_moved, s.posture_spread)):
-            if m <= 0:
-                continue
+        rounds = [(n - n_moved, 0.0), (n_moved, s.posture_spread)]
+        rounds += [(n_moved, s.posture_spread)] * s.extra_posture_rounds
+        for i, (m, spread) in enumerate(rounds):
+            drawn = sum(r[0] for r in rounds[:i])
+            if m <= 0 or (i >= 2 and (per_step.min() >= s.min_free_per_step
+                                      or drawn + m > (2 * n if budget is None else budget))):
+                continue  # extra rounds only while some step has too few free vertices
             Q, valid, steps = biased_configurations(self.model, self._landmarks, m, self._gen,
                                                     posture_spread=spread)
             free = valid.copy()
@@ -348,7 +363,10 @@ class TaskPlanner:
             ids = np.full(len(Q), -1)
             ids[free] = self.roadmap.add_vertices(Q[free], check=False)
             self.roadmap.add_edges(ids[chain_edges(free, steps)])
+            per_step += free.reshape(-1, steps).sum(0)
             added += int(free.sum())
+            if i >= 2:
+                self.stats["extra_posture_rounds"] = self.stats.get("extra_posture_rounds", 0) + 1
         self.stats["vertices_added"] += added
         return added
 
@@ -376,7 +394,7 @@ class TaskPlanner:
         if (min(np.abs(pos - g).max() for g in self._grown_for) <= s.regrow_distance
                 or min(room, s.regrow_vertices) <= 0):
             return
-        self._add_biased(min(room, s.regrow_vertices))
+        self._add_biased(min(room, s.regrow_vertices), budget=room)
         self.stats["regrows"] += 1
         self._grown_for.append(pos)
         if len(self._grown_for) > 64:  # bounded: forget the oldest places
