@@ -131,3 +131,49 @@ def test_project_to_model_trades_tool_error_for_joints_as_the_covariance_says():
         errs[name] = (float((x - f_t[:, 7:]).norm()), float((q - q_t).norm()))
     assert errs["tight"][0] < 0.005 < errs["loose"][0]      # tight: the tool point reaches its target
     assert errs["loose"][1] < 0.02 < errs["tight"][1]       # loose: the joints barely move
+
+
+def test_min_jerk_segments_respect_speed_and_acceleration_limits():
+    """Timed for the min-jerk profile, each edge's sampled joint speeds stay within speed * vmax
+    and its accelerations within accel; the profile starts and ends at rest."""
+    from sim.execute import plan_segments, profile_at
+    vmax = np.array([1.5] * 4 + [4.0] * 3)
+    rng = np.random.default_rng(0)
+    Q = np.cumsum(rng.uniform(-0.6, 0.6, (6, 7)), axis=0)
+    segs = plan_segments(Q, np.zeros(6, int), vmax, dt=0.1, speed=0.5, accel=2.0)
+    a = np.linspace(0, 1, 2001)
+    for q0, q1, dur, _ in segs:
+        s = np.array([profile_at(x)[0] for x in a])
+        q = q0 + s[:, None] * (q1 - q0)  # (N, 7)
+        h = dur / (len(a) - 1)
+        v = np.diff(q, axis=0) / h
+        acc = np.diff(v, axis=0) / h
+        assert np.all(np.abs(v) <= 0.5 * vmax * (1 + 1e-3))
+        assert np.abs(acc).max() <= 2.0 * (1 + 1e-2)
+        assert max(np.abs(v).max() / (0.5 * vmax).max(), np.abs(acc).max() / 2.0) > 0.5  # not needlessly slow
+    assert profile_at(0.0) == (0.0, 0.0) and profile_at(1.0)[0] == pytest.approx(1.0)
+    assert profile_at(1.0)[1] == pytest.approx(0.0)
+    with pytest.raises(ValueError, match="profile must be one of"):
+        from sim.execute import ExecSettings
+        ExecSettings(profile="cubic")
+
+
+def test_region_samples_follow_the_inflated_joint_gaussians(kin):
+    """Region vertices are N(mu_t, inflation^2 Sigma_t) over the joints: with one posture for all
+    steps and sigma 0.05 rad, the samples' mean is that posture and their spread 2 x 0.05."""
+    model = _model(kin)
+    model.mu = model.mu.clone()
+    model.mu[:, :7] = model.mu[0, :7]
+    model.sigma_inv = torch.diag_embed(torch.cat([torch.full((7,), 1 / 0.05), torch.full((3,), 1 / 0.2)])
+                                       ).to(torch.float64).repeat(model.mu.shape[0], 1, 1)
+    planner = TaskPlanner(model, lambda q: False, lambda a, b: False,
+                          settings=TaskPlannerSettings(n_vertices=50, region_inflation=2.0))
+    Q = planner.region_samples(20000)
+    assert Q.shape == (20000, 7)
+    assert np.abs(Q.mean(0) - model.mu[0, :7].numpy()).max() < 0.005
+    assert np.abs(Q.std(0) - 0.1).max() < 0.005
+    assert np.all(Q >= kin.lower.numpy()) and np.all(Q <= kin.upper.numpy())
+    with pytest.raises(ValueError, match="region_fraction"):
+        TaskPlannerSettings(region_fraction=1.5)
+    with pytest.raises(ValueError, match="posture_share"):
+        TaskPlannerSettings(posture_share=-0.1)

@@ -146,3 +146,34 @@ def test_cli_bad_input_exits_2_with_one_line(args, message):
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0] and "Traceback" not in r.stderr
+
+
+def test_contact_log_counts_touches_not_close_passes(world):
+    """PyBullet reports contact points up to 2 cm before bodies meet; the executor's log counts
+    only points at most 1 mm apart."""
+    from sim.execute import TOUCH_DISTANCE, _ContactLog
+    world.set_q(L.HOME_Q)
+    xy = world.T_world_gripper()[:2, 3]
+    c = world.client
+
+    def gap(dx):
+        world.place_object("paper_towels", (xy[0] + dx, xy[1]))
+        pts = p.getClosestPoints(world.robot, world.objects["paper_towels"], 0.05, physicsClientId=c)
+        return min((pt[8] for pt in pts), default=np.inf)
+
+    try:
+        dxs = np.linspace(0.0, 0.4, 401)
+        gaps = np.array([gap(dx) for dx in dxs])
+        near = dxs[np.flatnonzero((gaps > 0.004) & (gaps < 0.015))[0]]
+        for dx, touching in ((near, False), (0.0, True)):
+            g = gap(dx)
+            log = _ContactLog(world)
+            world.command_q(L.HOME_Q)
+            world.step(1)
+            log.poll(0.0)
+            hit = any(e["body"] == "paper_towels" for e in log.events)
+            assert hit == touching, (dx, g, log.events)
+            assert all(e["distance_m"] <= TOUCH_DISTANCE for e in log.events)
+    finally:
+        world.remove_object("paper_towels")
+        world.set_q(L.HOME_Q)
