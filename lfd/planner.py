@@ -32,7 +32,7 @@ from lfd.stgraph import GOAL, START, SearchBudgetExceeded, search
 __all__ = ["PlannerSettings", "PlanResult", "ClosedLoopPlanner", "STATUSES"]
 
 STATUSES = ("ok", "no_path", "start_in_collision", "goal_in_collision", "missing_landmark",
-            "invalid_cost", "budget_exceeded")
+            "invalid_cost", "budget_exceeded", "unreachable")
 
 
 @dataclass(frozen=True)

@@ -161,8 +161,10 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
     configurations of a chain are therefore near each other in joint space and the roadmap gets
     connected corridors through the task, not scattered islands.
 
-    Returns ``(Q (C*T, d), valid (C*T,) bool, T)``, chain-major: sample ``c * T + t`` is chain
-    c's configuration at step t; ``valid`` marks IK successes.
+    Returns ``(Q (C*T, d), valid (C*T,) bool, T, reached (C*T,) bool)``, chain-major: sample
+    ``c * T + t`` is chain c's configuration at step t; ``valid`` marks samples worth a vertex
+    (IK reached the tool-point target within 5 mm, or the projection improved the match);
+    ``reached`` the IK successes alone.
     """
     kin = model.kin
     T, F = model.mu.shape
@@ -182,7 +184,7 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
     p_world = f[..., d:] @ T_world_virt[:3, :3].T + T_world_virt[:3, 3]  # (C, T, 3)
     weights = torch.tensor([1, 1, 1, 0, 0, 0], dtype=model.dtype, device=model.device)
     T_target = torch.eye(4, dtype=model.dtype, device=model.device).repeat(chains, 1, 1)
-    out, ok, q_prev = [], [], None
+    out, ok, hit, q_prev = [], [], [], None
     for t in range(T):
         T_target[:, :3, 3] = p_world[:, t]
         seed = q_rest[:, t] if q_prev is None else q_prev
@@ -192,9 +194,11 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
         q_prev = q
         out.append(q)
         ok.append(res.success | better)
+        hit.append(res.success)
     Q = torch.stack(out, dim=1).reshape(chains * T, d).detach().cpu().numpy()  # (C*T, d), chain-major
     valid = torch.stack(ok, dim=1).reshape(-1).cpu().numpy()
-    return Q, valid, T
+    reached = torch.stack(hit, dim=1).reshape(-1).cpu().numpy()
+    return Q, valid, T, reached
 
 
 def chain_edges(valid: np.ndarray, steps_per_chain: int) -> np.ndarray:
@@ -281,7 +285,10 @@ class TaskPlanner:
         self.batch_collision_fn = batch_collision_fn
         self._fk = _FKCache(self.kin, settings.fk_cache_rows)
         self._landmarks: torch.Tensor | None = None  # (Z, 4, 4) kept landmarks, model order
-        self._grown_for: list[np.ndarray] = []       # landmark positions (Z, 3) biased samples were made for
+        # landmark positions (Z, 3) biased samples were made for, and the time steps whose
+        # tool-point targets no sampled execution reached there (the arm cannot: 'unreachable')
+        self._grown_for: list[tuple[np.ndarray, np.ndarray]] = []
+        self._unreachable = np.zeros(0, dtype=int)
         self.roadmap: Roadmap | None = None
         self.planner: ClosedLoopPlanner | None = None
         self._missing: str | None = None
@@ -348,6 +355,7 @@ class TaskPlanner:
         n_moved = int(round(s.posture_share * n))
         T = self.model.mu.shape[0]
         per_step = np.zeros(T, dtype=int)  # collision-free biased vertices per time step
+        self._reached = np.zeros(T, dtype=bool)  # steps whose tool-point target IK reached
         added = 0
         rounds = [(n - n_moved, 0.0), (n_moved, s.posture_spread)]
         rounds += [(n_moved, s.posture_spread)] * s.extra_posture_rounds
@@ -356,8 +364,9 @@ class TaskPlanner:
             if m <= 0 or (i >= 2 and (per_step.min() >= s.min_free_per_step
                                       or drawn + m > (2 * n if budget is None else budget))):
                 continue  # extra rounds only while some step has too few free vertices
-            Q, valid, steps = biased_configurations(self.model, self._landmarks, m, self._gen,
-                                                    posture_spread=spread)
+            Q, valid, steps, reached = biased_configurations(self.model, self._landmarks, m, self._gen,
+                                                             posture_spread=spread)
+            self._reached |= reached.reshape(-1, steps).any(0)
             free = valid.copy()
             free[valid] = ~self.roadmap.in_collision(Q[valid])
             ids = np.full(len(Q), -1)
@@ -377,9 +386,11 @@ class TaskPlanner:
                                      self.segment_fn, batch_collision_fn=self.batch_collision_fn,
                                      settings=s.roadmap)
         self.stats["vertices_added"] = self.roadmap.n
+        self._unreachable = np.zeros(0, dtype=int)
         if n_bias:
             self._add_biased(n_bias)
-        self._grown_for.append(self._landmarks[:, :3, 3].cpu().numpy())
+            self._unreachable = np.flatnonzero(~self._reached)
+        self._grown_for.append((self._landmarks[:, :3, 3].cpu().numpy(), self._unreachable))
         # step_nll is in Eq. 3 units (log|Sigma| + Mahalanobis^2 = 2 x nll + const), so the
         # transition term must be -2 log p(t'|t): hand the planner 2 log p as its "log_trans".
         self.planner = ClosedLoopPlanner(
@@ -391,22 +402,35 @@ class TaskPlanner:
         s = self.settings
         pos = self._landmarks[:, :3, 3].cpu().numpy()
         room = (s.max_vertices or 3 * s.n_vertices) - self.roadmap.n
-        if (min(np.abs(pos - g).max() for g in self._grown_for) <= s.regrow_distance
-                or min(room, s.regrow_vertices) <= 0):
+        dist = [np.abs(pos - g).max() for g, _ in self._grown_for]
+        nearest = int(np.argmin(dist))
+        if dist[nearest] <= s.regrow_distance:
+            self._unreachable = self._grown_for[nearest][1]
+            return
+        if min(room, s.regrow_vertices) <= 0 or not s.bias_fraction:
+            self._unreachable = np.zeros(0, dtype=int)  # not sampled here: no verdict
             return
         self._add_biased(min(room, s.regrow_vertices), budget=room)
+        self._unreachable = np.flatnonzero(~self._reached)
         self.stats["regrows"] += 1
-        self._grown_for.append(pos)
+        self._grown_for.append((pos, self._unreachable))
         if len(self._grown_for) > 64:  # bounded: forget the oldest places
             self._grown_for.pop(0)
 
     # -- planning -------------------------------------------------------------------------
     def plan(self, q_current, t_current: int = 0, q_goal=None) -> PlanResult:
         """Best plan from ``(q_current, t_current)`` to the last time step (see ``ClosedLoopPlanner``)."""
-        if self.planner is None:
-            msg = self._missing or "no landmarks yet: call update_landmarks first"
-            d = self.kin.dof
-            return PlanResult(status="missing_landmark", configurations=np.empty((0, d)),
-                              time_steps=np.empty(0, int), vertices=np.empty(0, int), cost=math.inf,
-                              n_edges_evaluated=0, latency_s=0.0, stats={}, message=msg)
+        if self.planner is None or self._missing:
+            return self._no_plan("missing_landmark",
+                                 self._missing or "no landmarks yet: call update_landmarks first")
+        if len(self._unreachable):
+            return self._no_plan("unreachable", "the arm cannot reach the tool-point targets of time "
+                                 f"step(s) {self._unreachable.tolist()} for these landmarks (IK failed "
+                                 "for every sampled execution)")
         return self.planner.plan(q_current, t_current, q_goal)
+
+    def _no_plan(self, status: str, message: str) -> PlanResult:
+        d = self.kin.dof
+        return PlanResult(status=status, configurations=np.empty((0, d)), time_steps=np.empty(0, int),
+                          vertices=np.empty(0, int), cost=math.inf, n_edges_evaluated=0,
+                          latency_s=0.0, stats={}, message=message)

@@ -177,3 +177,24 @@ def test_region_samples_follow_the_inflated_joint_gaussians(kin):
         TaskPlannerSettings(region_fraction=1.5)
     with pytest.raises(ValueError, match="posture_share"):
         TaskPlannerSettings(posture_share=-0.1)
+
+
+def test_a_landmark_out_of_reach_gives_unreachable_then_ok_when_back(kin):
+    """A bowl 3 m away: no sampled execution reaches its tool-point targets, so the planner says
+    'unreachable' instead of returning some path far from the bowl; moved back, it plans again
+    (the verdict is kept per landmark place, no resampling when the bowl returns)."""
+    model = _model(kin)
+    planner = TaskPlanner(model, lambda q: False, lambda a, b: False,
+                          settings=TaskPlannerSettings(n_vertices=150, seed=0))
+    near, far = np.eye(4)[None].copy(), np.eye(4)[None].copy()
+    near[0, :3, 3] = [0.7, 0.4, -0.1]
+    far[0, :3, 3] = [0.2, 3.0, 0.0]
+    q0 = model.mu[0, :7].numpy()
+    planner.update_landmarks(["bowl"], near)
+    assert planner.plan(q0, 0).ok
+    planner.update_landmarks(["bowl"], far)
+    res = planner.plan(q0, 0)
+    assert res.status == "unreachable" and "out of" not in res.message and "time step" in res.message
+    n = planner.roadmap.n
+    planner.update_landmarks(["bowl"], near)
+    assert planner.plan(q0, 0).ok and planner.roadmap.n == n
