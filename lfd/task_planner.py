@@ -11,11 +11,15 @@ the model wants the robot for the current landmarks, and re-plans lazily when la
 Biased sampling (in the spirit of the paper's [2]): feature vectors are drawn from the learned
 per-step Gaussians ``N(mu_t, Sigma_t)`` as chains through the time steps (see
 ``biased_configurations``); the task part (the tool point relative to the virtual landmark) is
-mapped into the world through the current ``K_virt`` and IK places the tool point there, pulled
-towards the sampled joints in the null space. The
-solutions are mixed with uniform samples (``bias_fraction``). When the task-relevant landmarks move
-by more than ``regrow_distance`` from every set the roadmap was grown for, new biased samples are
-added to the same roadmap; it is never rebuilt.
+mapped into the world through the current ``K_virt``, IK places the tool point there, pulled
+towards the sampled joints in the null space, and ``project_to_model`` then matches the sample in
+the step's learned metric. A share of the chains starts from other arm postures (and more are
+drawn while some time step has too few collision-free vertices). The rest of the roadmap is
+joint postures around the task, ``N(mu_t, region_inflation^2 Sigma_t)``, which join the chains,
+and uniform samples. When the task-relevant landmarks move by more than ``regrow_distance`` from
+every set the roadmap was grown for, new biased samples are added to the same roadmap; it is
+never rebuilt. When no sampled execution's IK reaches some step's tool-point target (the
+landmark is out of the arm's reach), ``plan`` returns the status ``unreachable``.
 
 FK of every configuration handed to the cost (roadmap vertices and the quadrature points of
 edges) is computed once and cached per configuration (bounded): those points repeat across
