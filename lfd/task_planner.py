@@ -39,6 +39,8 @@ from lfd.model import TaskModel
 from lfd.planner import ClosedLoopPlanner, PlannerSettings, PlanResult
 from lfd.roadmap import Roadmap, RoadmapSettings
 
+TASK_STEP_SD = 0.05  # m: a step whose tool-point sd (largest axis) is below this is task-relevant
+
 __all__ = ["TaskPlannerSettings", "TaskPlanner", "biased_configurations", "chain_edges",
            "project_to_model"]
 
@@ -282,6 +284,8 @@ class TaskPlanner:
         sigma = torch.linalg.inv(model.sigma_inv.detach())  # (T, F, F) lower Cholesky of Sigma_t
         cov_q = (sigma @ sigma.transpose(-1, -2))[:, :d, :d]  # (T, d, d) joint block
         self._region_mu = model.mu.detach()[:, :d]  # (T, d)
+        task_sd = torch.linalg.eigvalsh((sigma @ sigma.transpose(-1, -2))[:, d:, d:]).amax(-1).sqrt()  # (T,)
+        self._task_steps = (task_sd <= TASK_STEP_SD).cpu().numpy()  # (T,) bool
         self._region_L = torch.linalg.cholesky(
             settings.region_inflation ** 2 * cov_q
             + 1e-6 * torch.eye(d, dtype=cov_q.dtype, device=cov_q.device))  # (T, d, d)
@@ -393,7 +397,7 @@ class TaskPlanner:
         self._unreachable = np.zeros(0, dtype=int)
         if n_bias:
             self._add_biased(n_bias)
-            self._unreachable = np.flatnonzero(~self._reached)
+            self._unreachable = self._verdict(self._reached)
         self._grown_for.append((self._landmarks[:, :3, 3].cpu().numpy(), self._unreachable))
         # step_nll is in Eq. 3 units (log|Sigma| + Mahalanobis^2 = 2 x nll + const), so the
         # transition term must be -2 log p(t'|t): hand the planner 2 log p as its "log_trans".
@@ -401,6 +405,14 @@ class TaskPlanner:
             self.roadmap, self._step_nll_factory, 2.0 * self.model.log_trans.detach().cpu().numpy(),
             dt=float(self.model.task.dt) if self.model.task else 0.1,
             vmax=self.kin.velocity.cpu().numpy(), offsets=self.model.offsets, settings=s.planner)
+
+    def _verdict(self, reached: np.ndarray) -> np.ndarray:
+        """Task-relevant time steps whose tool-point targets no sampled execution reached
+        (``reached: (T,) bool``). Only steps where the demonstrations held the tool point within
+        ``TASK_STEP_SD`` of its mean relative to the landmark count: at the others (the start and
+        the end, at the source container) the target relative to a far bowl is loose and may be
+        out of reach while the task is not (seen in the soak: a bowl in the square's far corner)."""
+        return np.flatnonzero(~reached & self._task_steps)
 
     def _maybe_regrow(self) -> None:
         s = self.settings
@@ -412,10 +424,16 @@ class TaskPlanner:
             self._unreachable = self._grown_for[nearest][1]
             return
         if min(room, s.regrow_vertices) <= 0 or not s.bias_fraction:
-            self._unreachable = np.zeros(0, dtype=int)  # not sampled here: no verdict
+            # the roadmap is full: a few sampled executions, IK only, still give the verdict
+            _, _, steps, reached = biased_configurations(self.model, self._landmarks, 4 * self.model.mu.shape[0],
+                                                         self._gen, project_iters=0)
+            self._unreachable = self._verdict(reached.reshape(-1, steps).any(0))
+            self._grown_for.append((pos, self._unreachable))
+            if len(self._grown_for) > 64:
+                self._grown_for.pop(0)
             return
         self._add_biased(min(room, s.regrow_vertices), budget=room)
-        self._unreachable = np.flatnonzero(~self._reached)
+        self._unreachable = self._verdict(self._reached)
         self.stats["regrows"] += 1
         self._grown_for.append((pos, self._unreachable))
         if len(self._grown_for) > 64:  # bounded: forget the oldest places

@@ -179,11 +179,20 @@ def test_region_samples_follow_the_inflated_joint_gaussians(kin):
         TaskPlannerSettings(posture_share=-0.1)
 
 
+def _tight_model(kin):
+    """``_model`` with the tool point held within 2 cm of its mean: every step is task-relevant
+    (``lfd.task_planner.TASK_STEP_SD``)."""
+    model = _model(kin)
+    model.sigma_inv = torch.diag_embed(torch.cat([torch.full((7,), 1 / 0.8), torch.full((3,), 1 / 0.02)])
+                                       ).to(torch.float64).repeat(model.mu.shape[0], 1, 1)
+    return model
+
+
 def test_a_landmark_out_of_reach_gives_unreachable_then_ok_when_back(kin):
     """A bowl 3 m away: no sampled execution reaches its tool-point targets, so the planner says
     'unreachable' instead of returning some path far from the bowl; moved back, it plans again
     (the verdict is kept per landmark place, no resampling when the bowl returns)."""
-    model = _model(kin)
+    model = _tight_model(kin)
     planner = TaskPlanner(model, lambda q: False, lambda a, b: False,
                           settings=TaskPlannerSettings(n_vertices=150, seed=0))
     near, far = np.eye(4)[None].copy(), np.eye(4)[None].copy()
@@ -197,4 +206,24 @@ def test_a_landmark_out_of_reach_gives_unreachable_then_ok_when_back(kin):
     assert res.status == "unreachable" and "out of" not in res.message and "time step" in res.message
     n = planner.roadmap.n
     planner.update_landmarks(["bowl"], near)
+    assert planner.plan(q0, 0).ok and planner.roadmap.n == n
+
+
+def test_unreachable_is_judged_even_when_the_roadmap_is_full(kin):
+    """At the vertex cap no biased vertices are added, but a few IK-only executions still tell
+    an out-of-reach landmark from a reachable one."""
+    model = _tight_model(kin)
+    planner = TaskPlanner(model, lambda q: False, lambda a, b: False,
+                          settings=TaskPlannerSettings(n_vertices=150, max_vertices=150, seed=0))
+    near, far = np.eye(4)[None].copy(), np.eye(4)[None].copy()
+    near[0, :3, 3] = [0.7, 0.4, -0.1]
+    far[0, :3, 3] = [0.2, 3.0, 0.0]
+    q0 = model.mu[0, :7].numpy()
+    planner.update_landmarks(["bowl"], near)
+    n = planner.roadmap.n
+    planner.update_landmarks(["bowl"], far)
+    assert planner.plan(q0, 0).status == "unreachable" and planner.roadmap.n == n
+    moved = near.copy()
+    moved[0, :3, 3] += [0.0, -0.3, 0.0]
+    planner.update_landmarks(["bowl"], moved)
     assert planner.plan(q0, 0).ok and planner.roadmap.n == n
