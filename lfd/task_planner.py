@@ -29,6 +29,7 @@ re-plans, only the landmarks change.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -295,7 +296,7 @@ class TaskPlanner:
         self._landmarks: torch.Tensor | None = None  # (Z, 4, 4) kept landmarks, model order
         # landmark positions (Z, 3) biased samples were made for, and the time steps whose
         # tool-point targets no sampled execution reached there (the arm cannot: 'unreachable')
-        self._grown_for: list[tuple[np.ndarray, np.ndarray]] = []
+        self._grown_for: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=64)  # bounded
         self._unreachable = np.zeros(0, dtype=int)
         self.roadmap: Roadmap | None = None
         self.planner: ClosedLoopPlanner | None = None
@@ -353,17 +354,18 @@ class TaskPlanner:
             return model.step_nll(Q, fk(Q), landmarks)
         return step_nll
 
-    def _add_biased(self, n: int, budget: int | None = None) -> int:
+    def _add_biased(self, n: int, budget: int | None = None) -> np.ndarray:
         """Add about ``n`` biased vertices (collision-free ones) and their chain edges: a share
         ``posture_share`` of them from chains whose arm posture is moved by ``posture_spread``
         (an obstacle may sit where the demonstrated elbow was), and extra posture rounds while
         some step lacks free vertices, as long as the samples stay within ``budget`` (default
-        ``2 n``)."""
+        ``2 n``). Returns ``(T,) bool``: the steps whose tool-point target some execution's IK
+        reached."""
         s = self.settings
         n_moved = int(round(s.posture_share * n))
         T = self.model.mu.shape[0]
         per_step = np.zeros(T, dtype=int)  # collision-free biased vertices per time step
-        self._reached = np.zeros(T, dtype=bool)  # steps whose tool-point target IK reached
+        reached_steps = np.zeros(T, dtype=bool)
         added = 0
         rounds = [(n - n_moved, 0.0), (n_moved, s.posture_spread)]
         rounds += [(n_moved, s.posture_spread)] * s.extra_posture_rounds
@@ -374,7 +376,7 @@ class TaskPlanner:
                 continue  # extra rounds only while some step has too few free vertices
             Q, valid, steps, reached = biased_configurations(self.model, self._landmarks, m, self._gen,
                                                              posture_spread=spread)
-            self._reached |= reached.reshape(-1, steps).any(0)
+            reached_steps |= reached.reshape(-1, steps).any(0)
             free = valid.copy()
             free[valid] = ~self.roadmap.in_collision(Q[valid])
             ids = np.full(len(Q), -1)
@@ -385,7 +387,7 @@ class TaskPlanner:
             if i >= 2:
                 self.stats["extra_posture_rounds"] = self.stats.get("extra_posture_rounds", 0) + 1
         self.stats["vertices_added"] += added
-        return added
+        return reached_steps
 
     def _build(self) -> None:
         s = self.settings
@@ -394,11 +396,8 @@ class TaskPlanner:
                                      self.segment_fn, batch_collision_fn=self.batch_collision_fn,
                                      settings=s.roadmap)
         self.stats["vertices_added"] = self.roadmap.n
-        self._unreachable = np.zeros(0, dtype=int)
-        if n_bias:
-            self._add_biased(n_bias)
-            self._unreachable = self._verdict(self._reached)
-        self._grown_for.append((self._landmarks[:, :3, 3].cpu().numpy(), self._unreachable))
+        verdict = self._verdict(self._add_biased(n_bias)) if n_bias else np.zeros(0, dtype=int)
+        self._remember(self._landmarks[:, :3, 3].cpu().numpy(), verdict)
         # step_nll is in Eq. 3 units (log|Sigma| + Mahalanobis^2 = 2 x nll + const), so the
         # transition term must be -2 log p(t'|t): hand the planner 2 log p as its "log_trans".
         self.planner = ClosedLoopPlanner(
@@ -427,17 +426,15 @@ class TaskPlanner:
             # the roadmap is full: a few sampled executions, IK only, still give the verdict
             _, _, steps, reached = biased_configurations(self.model, self._landmarks, 4 * self.model.mu.shape[0],
                                                          self._gen, project_iters=0)
-            self._unreachable = self._verdict(reached.reshape(-1, steps).any(0))
-            self._grown_for.append((pos, self._unreachable))
-            if len(self._grown_for) > 64:
-                self._grown_for.pop(0)
+            self._remember(pos, self._verdict(reached.reshape(-1, steps).any(0)))
             return
-        self._add_biased(min(room, s.regrow_vertices), budget=room)
-        self._unreachable = self._verdict(self._reached)
+        self._remember(pos, self._verdict(self._add_biased(min(room, s.regrow_vertices), budget=room)))
         self.stats["regrows"] += 1
-        self._grown_for.append((pos, self._unreachable))
-        if len(self._grown_for) > 64:  # bounded: forget the oldest places
-            self._grown_for.pop(0)
+
+    def _remember(self, pos: np.ndarray, unreachable: np.ndarray) -> None:
+        """The current verdict, kept for the landmark place ``pos (Z, 3)`` (the last 64 places)."""
+        self._unreachable = unreachable
+        self._grown_for.append((pos, unreachable))
 
     # -- planning -------------------------------------------------------------------------
     def plan(self, q_current, t_current: int = 0, q_goal=None) -> PlanResult:

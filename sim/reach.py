@@ -39,13 +39,8 @@ class DumpReach:
         self.fns = make_collision_fns(self.world, obstacles=True)
         self.kin = KinematicModel.from_spec(self.world.spec, dtype=torch.float64)
         self.n_seeds, self.yaw_span, self.seed = int(n_seeds), np.deg2rad(yaw_span_deg), int(seed)
-        self._home = {name: self._where(name) for name in self.world.objects}
+        self._home = {name: tuple(self.world.object_pose(name)[:3, 3]) for name in self.world.objects}
         self.calls = 0
-
-    def _where(self, name: str):
-        import pybullet as p
-        return tuple(p.getBasePositionAndOrientation(self.world.objects[name],
-                                                     physicsClientId=self.world.client)[0])
 
     def __call__(self, placements: dict, bowl_xy) -> bool:
         from lfd.ik import IKConfig, solve_ik
