@@ -39,6 +39,11 @@ def parse_args(argv=None):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
     p.add_argument("--covariance", default=None, choices=("full", "block"))
+    p.add_argument("--init", default=None, choices=("reference", "random"),
+                   help="restarts' first alignments: DTW onto a reference demonstration (default) "
+                        "or independent random warps (the paper's)")
+    p.add_argument("--band", type=int, default=None,
+                   help="keep every alignment within this many steps of its restart's start")
     p.add_argument("--offsets", type=int, nargs="+", default=None,
                    help="permitted time-step transitions (default: lfd.learn.FitConfig's)")
     p.add_argument("--resume", action="store_true",
@@ -168,7 +173,7 @@ def _train(args, out: Path, guard, progress: dict) -> int:
     if ds.task is not None and ds.task.name != args.task:
         raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")
     kw = {"tool": args.tool, "env": args.env, "seed": args.seed, "device": args.device}
-    for key, val in (("restarts", args.restarts), ("covariance", args.covariance),
+    for key, val in (("restarts", args.restarts), ("covariance", args.covariance), ("init", args.init), ("band", args.band),
                      ("offsets", tuple(args.offsets) if args.offsets else None)):
         if val is not None:
             kw[key] = val

@@ -16,7 +16,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-__all__ = ["dtw_align", "min_samples", "random_alignment", "linear_alignment", "alignment_step_counts"]
+__all__ = ["dtw_align", "min_samples", "random_alignment", "linear_alignment", "reference_alignments",
+           "alignment_step_counts"]
 
 
 def min_samples(time_steps: int, offsets=(0, 1, 2)) -> int:
@@ -134,6 +135,68 @@ def random_alignment(n_samples: int, time_steps: int, rng: np.random.Generator,
         extra = rng.choice(n_trans, size=need - n_trans, replace=False)
         inc[extra] += 1
     return np.concatenate([[0], np.cumsum(inc)])
+
+
+def reference_alignments(series, time_steps: int, ref: int, ref_alignment=None, offsets=(0, 1, 2),
+                         max_points: int | None = None) -> list[np.ndarray]:
+    """Consistent starting alignments: every demonstration warped onto one reference by DTW.
+
+    Each series is centred on its own mean (a demonstration done with the arm elsewhere, e.g.
+    for a farther bowl, still matches by the shape of its motion), scaled per channel by the
+    spread of all centred samples, and aligned by
+    ``dtw_align`` to ``R`` evenly spaced samples of the reference (squared distance, offsets
+    ``(0, 1, 2)`` along the reference, no transition cost); a sample then takes the step the
+    reference's alignment gives the matched reference sample. The result is finally projected
+    onto the alignments permitted by ``offsets`` (the closest in squared step error), so it
+    always starts at step 0, ends at ``time_steps - 1`` and moves by permitted offsets only.
+
+    Unlike ``random_alignment`` per demonstration, the same phase of the motion starts on the
+    same step in every demonstration, so the first M-step sees step Gaussians of one phase each.
+
+    Parameters
+    ----------
+    series : M arrays ``(S_m, C)`` (e.g. joint angles).
+    time_steps : T.
+    ref : index of the reference series.
+    ref_alignment : ``(S_ref,)`` steps of the reference's samples (default: ``linear_alignment``).
+    offsets : the permitted step offsets of the result.
+    max_points : ``R`` at most (default ``4 T``); fewer when a series is too short to reach them.
+
+    Returns
+    -------
+    M int64 arrays ``(S_m,)``.
+    """
+    series = [np.asarray(x, dtype=float) for x in series]
+    if not series or any(x.ndim != 2 for x in series) or len({x.shape[1] for x in series}) != 1:
+        raise ValueError("series must be a non-empty list of (S_m, C) arrays with one C")
+    if not 0 <= ref < len(series):
+        raise ValueError(f"ref must index one of the {len(series)} series, got {ref}")
+    lengths = [len(x) for x in series]
+    need = min_samples(time_steps, offsets)
+    if min(lengths) < need:
+        raise ValueError(f"series of {min(lengths)} samples cannot reach step {time_steps} with offsets {offsets}")
+    n_ref = lengths[ref]
+    ref_alignment = linear_alignment(n_ref, time_steps) if ref_alignment is None else np.asarray(ref_alignment)
+    if ref_alignment.shape != (n_ref,):
+        raise ValueError(f"ref_alignment must have shape ({n_ref},), got {ref_alignment.shape}")
+    centred = [x - x.mean(axis=0) for x in series]
+    scale = np.maximum(np.concatenate(centred).std(axis=0), 1e-9)  # (C,)
+    z = [x / scale for x in centred]
+    R = min(max_points or 4 * time_steps, n_ref, 2 * (min(lengths) - 1) + 1)
+    pick = np.round(np.linspace(0, n_ref - 1, max(R, 2))).astype(np.int64)  # (R,) reference samples
+    z_ref = torch.as_tensor(z[ref][pick])
+    S = max(lengths)
+    cost = torch.zeros((len(z), S, len(pick)), dtype=torch.float64)  # (M, S_max, R)
+    for m, x in enumerate(z):
+        cost[m, :len(x)] = torch.cdist(torch.as_tensor(x), z_ref) ** 2
+    warp, _ = dtw_align(cost, lengths, torch.zeros((len(pick), 3), dtype=torch.float64), (0, 1, 2))
+    want = [ref_alignment[pick[w]].astype(float) for w in warp]  # (S_m,) desired steps
+    t = np.arange(time_steps, dtype=float)
+    proj = torch.zeros((len(z), S, time_steps), dtype=torch.float64)
+    for m, w in enumerate(want):
+        proj[m, :len(w)] = torch.as_tensor((w[:, None] - t[None, :]) ** 2)
+    out, _ = dtw_align(proj, lengths, torch.zeros((time_steps, len(offsets)), dtype=torch.float64), offsets)
+    return out
 
 
 def alignment_step_counts(alignments, time_steps: int, offsets=(0, 1, 2)) -> np.ndarray:

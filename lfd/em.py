@@ -140,6 +140,28 @@ class EMFitter:
                                 line_search_fn="strong_wolfe")
         opt.step(closure)
 
+    def search_tool(self, tool, w, t_idx):
+        """The best start for the tool point's LBFGS: ``tool`` or a point of a ``g^3`` grid
+        spanning ``+-cfg.tool_search`` m per axis (``g = cfg.tool_grid``), by the profiled loss.
+
+        The profiled loss is not convex in the tool point; from one start LBFGS was measured to
+        stop 12 cm from the demonstrated pour point at a loss 0.8 per observation worse."""
+        h, g = float(self.cfg.tool_search), int(self.cfg.tool_grid)
+        if h <= 0 or g < 1:
+            return tool
+        axis = torch.linspace(-h, h, g, dtype=self.dtype, device=self.device) if g > 1 else tool.new_zeros(1)
+        grid = torch.cartesian_prod(axis, axis, axis).reshape(-1, 3)  # (g^3, 3)
+        best, best_loss = tool, math.inf
+        with torch.no_grad():
+            for cand in torch.cat([tool[None], grid]):
+                try:
+                    loss = float(self.profiled(cand, w, t_idx))
+                except torch.linalg.LinAlgError:
+                    continue
+                if loss < best_loss:
+                    best, best_loss = cand.clone(), loss
+        return best
+
     def m_step(self, tool, w, t_idx, learn_tool, learn_env):
         N = self.data.N
         tool_p = tool.clone().requires_grad_(learn_tool)
@@ -186,10 +208,19 @@ class EMFitter:
         w = (w + self.B @ u).detach()
         return tool_p.detach(), w - (w.sum() - 1) / self.Z, mu_p.detach(), build().detach()
 
-    def e_step(self, tool, w, mu, sigma_inv, log_trans):
+    def band_mask(self, align):
+        """``(M, S_max, T)`` True where a step is more than ``cfg.band`` steps from ``align``
+        (the restart's starting alignment), i.e. where the E-step may not put a sample."""
+        centre = self.data.pad(torch.as_tensor(np.concatenate(align), device=self.device)[:, None].to(self.dtype))
+        t = torch.arange(self.T, device=self.device, dtype=self.dtype)
+        return (t[None, None, :] - centre).abs() > self.cfg.band
+
+    def e_step(self, tool, w, mu, sigma_inv, log_trans, band=None):
         with torch.no_grad():
             f, _ = self.data.features(tool, w, self.T_lm)
             cost = self.data.pad(step_nll_tensor(f, mu, sigma_inv, self.s))  # (M, S_max, T)
+            if band is not None:
+                cost = cost.masked_fill(band, float("inf"))
             align, values = dtw_align(cost, self.data.lengths, -2.0 * log_trans, self.cfg.offsets)
         return align, values
 
@@ -205,12 +236,15 @@ class EMFitter:
     def em(self, tool, w, align, learn_tool, learn_env, on_iter=None):
         """Alternate M and E steps from an initial alignment; returns the state and loss history."""
         history, state = [], None
+        band = self.band_mask(align) if self.cfg.band is not None else None
         for it in range(self.cfg.max_em_iters):
             t_idx = torch.as_tensor(np.concatenate(align), device=self.device)
             log_trans = estimate_log_trans(align, self.T, self.cfg.offsets, self.cfg.trans_floor,
                                            self.dtype, self.device)
+            if it == 0 and learn_tool:
+                tool = self.search_tool(tool, w, t_idx)
             tool, w, mu, sigma_inv = self.m_step(tool, w, t_idx, learn_tool, learn_env)
-            new_align, values = self.e_step(tool, w, mu, sigma_inv, log_trans)
+            new_align, values = self.e_step(tool, w, mu, sigma_inv, log_trans, band)
             loss = self.total_loss(tool, w, mu, sigma_inv, values)
             if not math.isfinite(loss) or not all(torch.isfinite(x).all() for x in (tool, w, mu, sigma_inv)):
                 raise FloatingPointError(f"non-finite loss at EM iteration {it + 1}")

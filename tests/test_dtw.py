@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from lfd.dtw import alignment_step_counts, dtw_align, min_samples, random_alignment
+from lfd.dtw import alignment_step_counts, dtw_align, min_samples, random_alignment, reference_alignments
 from lfd.priors import estimate_log_trans
 
 
@@ -69,3 +69,41 @@ def test_transition_estimate_keeps_a_floor_and_forbids_leaving():
     assert np.allclose(p.sum(1), 1)
     assert (p[:2] >= 0.0099).all()  # every permitted transition kept possible
     assert p[3].tolist() == [1.0, 0.0, 0.0] and p[2, 2] == 0.0
+
+
+def _warped_series(rng, n, offset):
+    """A 3-channel motion with a pulse at phase 0.6, time-warped at random and offset."""
+    u = np.sort(rng.uniform(0, 1, n))
+    u = (u - u[0]) / (u[-1] - u[0])  # (n,) phase of each sample
+    u = u ** rng.uniform(0.7, 1.4)
+    x = np.stack([np.sin(3 * u), np.exp(-((u - 0.6) / 0.05) ** 2), u ** 2], 1) + offset
+    return u, x + rng.normal(0, 0.01, x.shape)
+
+
+@pytest.mark.parametrize("offsets", [(0, 1, 2), (0, 1)])
+def test_reference_alignments_put_one_phase_on_one_step(offsets):
+    """Series of different lengths, warps and constant offsets (an arm elsewhere): the sample at
+    a given phase gets the step the reference gives that phase, within one step, while
+    independent random warps scatter it; the result is a permitted alignment."""
+    rng = np.random.default_rng(1)
+    T = 12
+    phases, series = zip(*[_warped_series(rng, int(n), rng.normal(0, 2.0, 3))
+                           for n in rng.integers(40, 160, 6)])
+    ref = 2
+    align = reference_alignments(series, T, ref, offsets=offsets)
+    ref_step = np.interp(np.linspace(0, 1, 50), phases[ref], align[ref])  # step of each phase
+    for u, a in zip(phases, align):
+        assert a[0] == 0 and a[-1] == T - 1 and set(np.diff(a)) <= set(offsets)
+        assert np.abs(np.interp(np.linspace(0, 1, 50), u, a) - ref_step).max() <= 1.01
+    scattered = [random_alignment(len(u), T, rng, offsets) for u in phases]
+    err = max(np.abs(np.interp(np.linspace(0, 1, 50), u, a) - ref_step).max() for u, a in zip(phases, scattered))
+    assert err > 2
+
+
+def test_reference_alignments_reject_bad_input():
+    with pytest.raises(ValueError, match="ref must index"):
+        reference_alignments([np.zeros((30, 2))], 8, ref=1)
+    with pytest.raises(ValueError, match="cannot reach step"):
+        reference_alignments([np.zeros((30, 2)), np.zeros((3, 2))], 8, ref=0)
+    with pytest.raises(ValueError, match="one C"):
+        reference_alignments([np.zeros((30, 2)), np.zeros((30, 3))], 8, ref=0)

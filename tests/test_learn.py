@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from lfd.kinematics import KinematicModel
-from lfd.learn import FitConfig, _Data, _Fitter, fit
+from lfd.learn import FitConfig, _Data, _Fitter, fit, initial_guesses
 from lfd.model import step_nll_tensor
 from lfd.synthetic import make_synthetic
 from lfd.tasks import POWDER
@@ -38,6 +38,27 @@ def test_config_options_are_validated():
         FitConfig(covariance="diag")
     with pytest.raises(ValueError, match="FitConfig.device"):
         FitConfig(device="tpu")
+    with pytest.raises(ValueError, match=r"FitConfig.init must be one of reference, random; got 'dtw'"):
+        FitConfig(init="dtw")
+    with pytest.raises(ValueError, match="FitConfig.band"):
+        FitConfig(band=-1)
+    with pytest.raises(ValueError, match="FitConfig.tool_search"):
+        FitConfig(tool_search=-0.1)
+
+
+@pytest.mark.parametrize("band", [0, 1, 3])
+def test_band_keeps_the_e_step_near_the_start(synth, kin, band):
+    """With ``band`` every EM alignment stays within that many steps of the restart's start
+    (here the reference alignment), and the loss still does not increase."""
+    ds, _ = synth
+    cfg = FitConfig(time_steps=T_STEPS, band=band, max_em_iters=6)
+    data, fitter = _fitter(ds, kin, cfg)
+    align0, tool0, w0 = next(initial_guesses(0, data.lengths, T_STEPS, len(ds.landmark_names), cfg,
+                                             series=[d.q for d in ds.demos]))
+    state, hist = fitter.em(torch.as_tensor(tool0), torch.as_tensor(w0), align0, True, True)
+    for a0, a in zip(align0, state[-1]):
+        assert np.abs(a - a0).max() <= band
+    assert all(b <= a + 1e-9 for a, b in zip(hist, hist[1:]))
 
 
 @pytest.mark.parametrize("covariance", ["full", "block"])
@@ -124,12 +145,12 @@ def test_non_finite_restart_is_dropped(synth, kin):
     ds, _ = synth
     calls = {"n": 0}
 
-    def prior(tool, w):  # poisons the first restart only
+    def prior(tool, w):  # poisons the first restart only (no tool grid search: one call per start)
         calls["n"] += 1
         return tool.sum() * (math.nan if calls["n"] < 2 else 0.0)
 
     with pytest.warns(RuntimeWarning, match="restart 0 dropped"):
-        res = fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=2, zeta_prior=prior))
+        res = fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=2, zeta_prior=prior, tool_search=0.0))
     assert math.isnan(res.restart_losses[0]) and math.isfinite(res.final_loss)
     assert res.best_restart == 1 and any("restart 0 dropped" in w for w in res.warnings)
     with pytest.raises(ValueError, match="every one of the 1 restarts failed"):
