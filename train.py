@@ -42,8 +42,9 @@ def parse_args(argv=None):
     p.add_argument("--init", default=None, choices=("reference", "random"),
                    help="restarts' first alignments: DTW onto a reference demonstration (default) "
                         "or independent random warps (the paper's)")
-    p.add_argument("--band", type=int, default=None,
-                   help="keep every alignment within this many steps of its restart's start")
+    p.add_argument("--band", default=None, metavar="N|none",
+                   help="keep every alignment within N steps of its restart's start (default 1); "
+                        "'none' lets the DTW move freely, as in the paper")
     p.add_argument("--offsets", type=int, nargs="+", default=None,
                    help="permitted time-step transitions (default: lfd.learn.FitConfig's)")
     p.add_argument("--resume", action="store_true",
@@ -173,10 +174,15 @@ def _train(args, out: Path, guard, progress: dict) -> int:
     if ds.task is not None and ds.task.name != args.task:
         raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")
     kw = {"tool": args.tool, "env": args.env, "seed": args.seed, "device": args.device}
-    for key, val in (("restarts", args.restarts), ("covariance", args.covariance), ("init", args.init), ("band", args.band),
+    for key, val in (("restarts", args.restarts), ("covariance", args.covariance), ("init", args.init),
                      ("offsets", tuple(args.offsets) if args.offsets else None)):
         if val is not None:
             kw[key] = val
+    if args.band is not None:
+        try:
+            kw["band"] = None if args.band.lower() == "none" else int(args.band)
+        except ValueError:
+            raise UsageError(f"--band must be a whole number of steps or 'none', got {args.band!r}") from None
     kw["time_steps"] = args.time_steps or (ds.task.time_steps if ds.task else 24)
     try:
         cfg = FitConfig(**kw)

@@ -173,6 +173,8 @@ CASES = [
     ("bad-covariance", _train("--covariance", "diag"), "argument --covariance: invalid choice: 'diag'"),
     ("restarts-0", _train("--restarts", "0"), "--restarts must be at least 1, got 0"),
     ("time-steps-1", _train("--time-steps", "1"), "--time-steps must be at least 2, got 1"),
+    ("band-word", _train("--band", "wide"), "--band must be a whole number of steps or 'none', got 'wide'"),
+    ("band-negative", _train("--band", "-2"), "FitConfig.band must be None or non-negative, got -2"),
     ("out-is-file", _train(out=_out_is_file), "exists and is not a folder"),
     ("out-under-a-file", _train(out=_out_under_file), "cannot create this folder (Not a directory)"),
     ("device-cuda", _train("--device", "cuda"), "--device cuda: torch.cuda.is_available() is False"),
