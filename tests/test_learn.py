@@ -155,3 +155,24 @@ def test_non_finite_restart_is_dropped(synth, kin):
     assert res.best_restart == 1 and any("restart 0 dropped" in w for w in res.warnings)
     with pytest.raises(ValueError, match="every one of the 1 restarts failed"):
         fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=1, zeta_prior=lambda t, w: t.sum() * math.nan))
+
+
+def test_tool_search_starts_lbfgs_from_the_best_grid_point(synth, kin):
+    """The start is the grid point (or the current guess) of least profiled loss, nearer the
+    truth than a far-off guess; tool_search=0 keeps the guess."""
+    ds, truth = synth
+    cfg = FitConfig(time_steps=T_STEPS, tool_search=0.2, tool_grid=3)
+    data, fitter = _fitter(ds, kin, cfg)
+    t_idx = torch.as_tensor(np.concatenate(truth.alignments))
+    w = torch.zeros(5, dtype=torch.float64)
+    w[truth.true_landmark] = 1.0
+    far = torch.tensor([0.5, -0.5, 0.5], dtype=torch.float64)
+    start = fitter.search_tool(far, w, t_idx)
+    axis = torch.tensor([-0.2, 0.0, 0.2], dtype=torch.float64)
+    cands = torch.cat([far[None], torch.cartesian_prod(axis, axis, axis)])
+    losses = torch.stack([fitter.profiled(c, w, t_idx) for c in cands])
+    assert torch.equal(start, cands[int(losses.argmin())])
+    assert float(fitter.profiled(start, w, t_idx)) < float(fitter.profiled(far, w, t_idx))
+    assert np.linalg.norm(start.numpy() - truth.tool) < np.linalg.norm(far.numpy() - truth.tool)
+    off = FitConfig(time_steps=T_STEPS, tool_search=0.0)
+    assert torch.equal(_fitter(ds, kin, off)[1].search_tool(far, w, t_idx), far)
