@@ -29,6 +29,14 @@ every sampling interval adds ``|s|`` per interval: the planner minimizes
 path duration the optimum is unchanged. The clamp at 0 is active only where L is below the floor,
 which never happens when the floor is a true bound (and, when estimated, only between vertices).
 
+Per-step floor. With ``nll_floor`` given per step (``lfd.task_planner`` passes the model's
+``s log|Sigma_t|``, its default), ``ell`` is the Mahalanobis term alone and there is no time
+penalty beyond ``-log p(t|t)``. Why: the single shift charges ``|s|`` for every sampling interval
+spent moving, while a time edge charges one interval for a whole time step; at the pour
+demonstrations' 50 Hz (``|s|`` ~ 67 per 0.02 s) moving 0.1 s cost more than holding a worse
+posture for several steps, and plans held one 85-95 degree posture through the whole pour where
+the model's steps asked for 100-105 degrees (the pitcher needs ~100 to empty).
+
 A* heuristic: ``lfd.stheuristic``, the cost-to-go of a relaxed problem (roadmap edges charged
 only their self-transition part), a consistent lower bound computed for all vertices at once.
 
@@ -61,7 +69,10 @@ class CostError(ValueError):
 @dataclass(frozen=True)
 class CostSettings:
     """quad_dt: max time (s) between quadrature nodes along an edge (None: the model's dt);
-    nll_floor: known lower bound on step_nll (None: estimated from all roadmap vertices);
+    nll_floor: known lower bound on step_nll: one number (the shift is ``min(0, floor)``), or
+    one per time step ``(T,)`` (the shift is that bound itself, per step: with the model's
+    ``s log|Sigma_t|`` the shifted cost is exactly the Mahalanobis term), or None (estimated
+    from all roadmap vertices, one number);
     heuristic: compute the A* heuristic (needs every vertex's cost, one batched call);
     heuristic_sweeps: move-first relaxations of the heuristic (lfd.stheuristic), 0 = time only;
     max_batch: rows per step_nll call; dtype: of the tensors passed to step_nll;
@@ -70,7 +81,7 @@ class CostSettings:
     as free and the planner checks only the edges of the path it returns, dropping colliding
     ones and searching again until the path is free; far fewer checks)."""
     quad_dt: float | None = None
-    nll_floor: float | None = None
+    nll_floor: float | tuple[float, ...] | None = None
     heuristic: bool = True
     heuristic_sweeps: int = 3
     max_batch: int = 16384
@@ -118,6 +129,11 @@ class SpatiotemporalCosts:
             raise ValueError(f"Expected vmax with shape ({roadmap.d},) and > 0, got {vmax}")
         self.roadmap, self.dt, self.vmax, self.settings = roadmap, float(dt), vmax, settings
         self.T = lt.shape[0]
+        floor = settings.nll_floor
+        if floor is not None and (np.ndim(floor) > 1 or (np.ndim(floor) == 1 and len(floor) != self.T)
+                                  or not np.isfinite(np.asarray(floor, dtype=float)).all()):
+            raise ValueError(f"Expected nll_floor to be one finite number or {self.T} (one per time step), "
+                             f"got {floor!r}")
         self.quad_dt = float(settings.quad_dt or dt)
         # trans[t, k] = -log p(t + k | t) for k in 0..max(offsets), inf where not permitted
         trans = np.full((self.T, max(offsets) + 1), np.inf)
@@ -146,7 +162,7 @@ class SpatiotemporalCosts:
     def _reset(self) -> None:
         self._vraw = np.full((self.roadmap.n, self.T), np.nan)  # raw L(q_v | t), by vertex id
         self._tempraw: dict[int, np.ndarray] = {}
-        self._shift: float | None = None
+        self._shift: np.ndarray | None = None  # () or (T,)
         self._G: np.ndarray | None = None  # heuristic rows: roadmap, then temps with in-edges
         self._Gkey, self._Gtmin = None, 0
         self._Grow: dict[int, int] = {}  # temp id -> row of _G
@@ -236,11 +252,14 @@ class SpatiotemporalCosts:
         need_all = self.settings.heuristic or self.settings.nll_floor is None
         if need_all:
             self._ensure_vertices(np.arange(self.roadmap.n))
-        if self.settings.nll_floor is not None:
-            shift = min(0.0, float(self.settings.nll_floor))
+        floor = self.settings.nll_floor
+        if floor is not None and np.ndim(floor) == 1:
+            shift = np.asarray(floor, dtype=float)
+        elif floor is not None:
+            shift = np.asarray(min(0.0, float(floor)))
         else:
-            shift = min(0.0, float(np.min(self._vraw))) if self.roadmap.n else 0.0
-        if self._shift is None or shift != self._shift:
+            shift = np.asarray(min(0.0, float(np.min(self._vraw))) if self.roadmap.n else 0.0)
+        if self._shift is None or not np.array_equal(shift, self._shift):
             self._shift = shift
             self._out, self._tout, self._tedge = {}, {}, {}
             self._ehave[:] = False
@@ -258,7 +277,7 @@ class SpatiotemporalCosts:
             self._G = None
 
     def ell(self, raw: np.ndarray) -> np.ndarray:
-        """Shifted, non-negative step cost of raw values (any shape)."""
+        """Shifted, non-negative step cost of raw values ``(..., T)``."""
         return np.maximum(raw - self._shift, 0.0)
 
     def _relaxed_edges(self):
@@ -287,7 +306,7 @@ class SpatiotemporalCosts:
         """Consistent A* bounds (lfd.stheuristic) for the roadmap, the goal and the start."""
         n = self.roadmap.n
         sinks = [i for i in sorted(self._temp) if self._in[i]]
-        key = (self._epoch, n, self._shift, self.settings.heuristic_sweeps,
+        key = (self._epoch, n, self._shift.tobytes(), self.settings.heuristic_sweeps,
                tuple((i, self._temp[i].tobytes(), tuple(self._in[i]), tuple(self._links[i]))
                      for i in sinks))
         if key != self._Gkey or t_start < self._Gtmin:
@@ -348,7 +367,7 @@ class SpatiotemporalCosts:
         c = self.trans[t, k]
         if not np.isfinite(c):
             return math.inf
-        return float(c + self.ell(self._raw(v)[t + k]))
+        return float(c + self.ell(self._raw(v))[t + k])
 
     def spatial(self, v: int) -> tuple[list[int], np.ndarray]:
         """Collision-free neighbours of ``v`` and their edge costs ``(deg, T)`` at every step.

@@ -30,13 +30,13 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
 
 from lfd.ik import IKConfig, solve_ik
-from lfd.model import TaskModel
+from lfd.model import TaskModel, logdet_tensor
 from lfd.planner import ClosedLoopPlanner, PlannerSettings, PlanResult
 from lfd.roadmap import Roadmap, RoadmapSettings
 
@@ -44,6 +44,8 @@ TASK_STEP_SD = 0.05  # m: a step whose tool-point sd (largest axis) is below thi
 
 __all__ = ["TaskPlannerSettings", "TaskPlanner", "biased_configurations", "chain_edges",
            "project_to_model"]
+
+COST_FLOORS = ("per-step", "global")
 
 
 @dataclass(frozen=True)
@@ -62,7 +64,9 @@ class TaskPlannerSettings:
     regrow_distance: landmark motion (m) that triggers new biased samples; regrow_vertices: how
     many; max_vertices: the roadmap never grows past this (default 3 x n_vertices), so a long run
     of landmark moves cannot grow memory without bound; fk_cache_rows: rows of cached FK at most;
-    seed: of every random draw."""
+    seed: of every random draw; cost_floor: "per-step" (the edge costs' shift is each step's
+    ``s log|Sigma_t|``, so a configuration costs its Mahalanobis term; see ``lfd.stcost``) or
+    "global" (one shift, the least step cost over the roadmap: a time penalty per interval)."""
 
     n_vertices: int = 1000
     bias_fraction: float = 0.6
@@ -72,6 +76,7 @@ class TaskPlannerSettings:
     posture_spread: float = 1.0
     min_free_per_step: int = 3
     extra_posture_rounds: int = 3
+    cost_floor: str = "per-step"
     regrow_distance: float = 0.10
     regrow_vertices: int = 400
     max_vertices: int | None = None
@@ -94,6 +99,8 @@ class TaskPlannerSettings:
         if not 0.0 <= self.posture_share <= 1.0 or self.posture_spread < 0:
             raise ValueError("posture_share must be in [0, 1] and posture_spread >= 0, got "
                              f"{self.posture_share}, {self.posture_spread}")
+        if self.cost_floor not in COST_FLOORS:
+            raise ValueError(f"cost_floor must be one of {COST_FLOORS}, got {self.cost_floor!r}")
         if self.regrow_distance <= 0 or self.regrow_vertices < 0:
             raise ValueError("regrow_distance must be > 0 and regrow_vertices >= 0, got "
                              f"{self.regrow_distance}, {self.regrow_vertices}")
@@ -400,10 +407,14 @@ class TaskPlanner:
         self._remember(self._landmarks[:, :3, 3].cpu().numpy(), verdict)
         # step_nll is in Eq. 3 units (log|Sigma| + Mahalanobis^2 = 2 x nll + const), so the
         # transition term must be -2 log p(t'|t): hand the planner 2 log p as its "log_trans".
+        planner_settings = s.planner
+        if s.cost_floor == "per-step":  # step_nll >= s log|Sigma_t| (the Mahalanobis term is >= 0)
+            floor = self.model.logdet_scale * logdet_tensor(self.model.sigma_inv).detach().cpu().numpy()
+            planner_settings = replace(s.planner, cost=replace(s.planner.cost, nll_floor=tuple(floor.tolist())))
         self.planner = ClosedLoopPlanner(
             self.roadmap, self._step_nll_factory, 2.0 * self.model.log_trans.detach().cpu().numpy(),
             dt=float(self.model.task.dt) if self.model.task else 0.1,
-            vmax=self.kin.velocity.cpu().numpy(), offsets=self.model.offsets, settings=s.planner)
+            vmax=self.kin.velocity.cpu().numpy(), offsets=self.model.offsets, settings=planner_settings)
 
     def _verdict(self, reached: np.ndarray) -> np.ndarray:
         """Task-relevant time steps whose tool-point targets no sampled execution reached

@@ -60,7 +60,10 @@ def reference_graph(rm, step_nll, log_trans, dt, vmax, q_start, quad_dt=None, fl
     n = len(V)
     L = lambda Q: step_nll(torch.as_tensor(Q)).numpy()  # noqa: E731
     LV = L(V)
-    s = min(0.0, LV.min() if floor is None else floor)
+    if floor is not None and np.ndim(floor) == 1:  # a bound per step, used as it is
+        s = np.asarray(floor, dtype=float)
+    else:
+        s = min(0.0, LV.min() if floor is None else floor)
     ell = lambda raw: np.maximum(raw - s, 0.0)  # noqa: E731
     pos = {v: V[v] for v in range(n)}
     pos["s"] = q_start
@@ -171,6 +174,26 @@ def test_goal_configuration_and_known_floor(toy):
     ref = reference_cost(toy, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2, q0, 0,
                          floor=floor, q_goal=qg)
     assert res.cost == pytest.approx(ref, rel=1e-9)
+
+
+@pytest.mark.parametrize("edge_checks", ["path", "expand"])
+def test_per_step_floor_matches_dijkstra(toy, edge_checks):
+    """A floor per time step (what TaskPlanner passes: s log|Sigma_t|) shifts each step's cost
+    by its own bound; the lazy A* still returns Dijkstra's optimum of that graph, and the
+    shifted costs are the raw ones minus each step's bound."""
+    means = arc_means(T2)
+    base = 2 * math.log(math.sqrt(2 * math.pi) * 0.15)  # the Gaussian's minimum, every step
+    floor = tuple(base - 0.3 * t for t in range(T2))  # still a true bound, a different one per step
+    planner = make_planner(toy, means, nll_floor=floor, edge_checks=edge_checks)
+    q0 = np.array([-0.7, 0.05])
+    res = planner.plan(q0, 0)
+    assert_path_valid(res, toy)
+    ref = reference_cost(toy, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2, q0, 0, floor=floor)
+    assert res.cost == pytest.approx(ref, rel=1e-9)
+    raw = gaussian_factory()(means)(torch.as_tensor(toy._buf[:5])).numpy()
+    np.testing.assert_allclose(planner.costs.ell(raw), raw - np.asarray(floor), rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match=f"nll_floor to be one finite number or {T2}"):
+        make_planner(toy, means, nll_floor=(0.0, 1.0))
 
 
 @pytest.mark.parametrize("t_start", [0, 3])

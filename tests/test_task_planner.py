@@ -72,6 +72,34 @@ def test_task_planner_plans_and_reports_missing_landmark(kin):
     assert planner.plan(q0, 0).status == "missing_landmark"
 
 
+@pytest.mark.parametrize("cost_floor", ["per-step", "global"])
+def test_cost_floor_per_step_is_the_models_log_det(kin, cost_floor):
+    """'per-step' hands the planner each step's s log|Sigma_t| as its floor, so a vertex's shifted
+    cost is its Mahalanobis term (>= 0, 0 at the mean); 'global' keeps one estimated shift."""
+    model = _model(kin)
+    planner = TaskPlanner(model, lambda q: False, lambda a, b: False,
+                          settings=TaskPlannerSettings(n_vertices=60, seed=0, cost_floor=cost_floor))
+    bowl = np.eye(4)[None]
+    bowl[0, :3, 3] = [0.7, 0.4, -0.1]
+    planner.update_landmarks(["marker", "bowl"], np.concatenate([np.eye(4)[None], bowl]))
+    assert planner.plan(model.mu[0, :7].numpy(), 0).ok
+    floor = planner.planner.costs.settings.nll_floor
+    if cost_floor == "global":
+        assert floor is None
+        return
+    logdet = model.logdet_scale * -2.0 * torch.log(torch.diagonal(model.sigma_inv, dim1=-2, dim2=-1)).sum(-1)
+    np.testing.assert_allclose(floor, logdet.numpy(), rtol=1e-12)
+    Q = planner.roadmap._buf[:20]
+    raw = model.step_nll(torch.as_tensor(Q), landmarks=planner._landmarks).numpy()
+    ell = planner.planner.costs.ell(raw)
+    assert (ell >= 0).all()
+    f = model.features(torch.as_tensor(Q), landmarks=planner._landmarks)
+    maha = (torch.einsum("tij,ntj->nti", model.sigma_inv, f[:, None, :] - model.mu[None]) ** 2).sum(-1)
+    np.testing.assert_allclose(ell, maha.numpy(), rtol=1e-9, atol=1e-9)
+    with pytest.raises(ValueError, match="cost_floor must be one of"):
+        TaskPlannerSettings(cost_floor="none")
+
+
 def test_plan_segments_respect_velocity_limits_and_pace():
     from sim.execute import expected_sojourn, plan_segments
     vmax = np.array([1.5] * 4 + [4.0] * 3)
