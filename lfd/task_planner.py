@@ -66,7 +66,8 @@ class TaskPlannerSettings:
     of landmark moves cannot grow memory without bound; fk_cache_rows: rows of cached FK at most;
     seed: of every random draw; cost_floor: "per-step" (the edge costs' shift is each step's
     ``s log|Sigma_t|``, so a configuration costs its Mahalanobis term; see ``lfd.stcost``) or
-    "global" (one shift, the least step cost over the roadmap: a time penalty per interval)."""
+    "global" (one shift: ``planner.cost.nll_floor``, or the least step cost over the roadmap;
+    a time penalty per interval). "per-step" replaces ``planner.cost.nll_floor``."""
 
     n_vertices: int = 1000
     bias_fraction: float = 0.6
