@@ -39,7 +39,7 @@ def parse_args(argv=None):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
     p.add_argument("--covariance", default=None, choices=("full", "block"))
-    p.add_argument("--init", default=None, choices=("reference", "random"),
+    p.add_argument("--init", default=None, choices=("reference", "random"),  # lfd.learn.INITS (torch-free here)
                    help="restarts' first alignments: DTW onto a reference demonstration (default) "
                         "or independent random warps (the paper's)")
     p.add_argument("--band", default=None, metavar="N|none",

@@ -185,17 +185,20 @@ def reference_alignments(series, time_steps: int, ref: int, ref_alignment=None, 
     R = min(max_points or 4 * time_steps, n_ref, 2 * (min(lengths) - 1) + 1)
     pick = np.round(np.linspace(0, n_ref - 1, max(R, 2))).astype(np.int64)  # (R,) reference samples
     z_ref = torch.as_tensor(z[ref][pick])
-    S = max(lengths)
-    cost = torch.zeros((len(z), S, len(pick)), dtype=torch.float64)  # (M, S_max, R)
-    for m, x in enumerate(z):
-        cost[m, :len(x)] = torch.cdist(torch.as_tensor(x), z_ref) ** 2
+    cost = _padded([torch.cdist(torch.as_tensor(x), z_ref) ** 2 for x in z])  # (M, S_max, R)
     warp, _ = dtw_align(cost, lengths, torch.zeros((len(pick), 3), dtype=torch.float64), (0, 1, 2))
     want = [ref_alignment[pick[w]].astype(float) for w in warp]  # (S_m,) desired steps
     t = np.arange(time_steps, dtype=float)
-    proj = torch.zeros((len(z), S, time_steps), dtype=torch.float64)
-    for m, w in enumerate(want):
-        proj[m, :len(w)] = torch.as_tensor((w[:, None] - t[None, :]) ** 2)
+    proj = _padded([torch.as_tensor((w[:, None] - t[None, :]) ** 2) for w in want])  # (M, S_max, T)
     out, _ = dtw_align(proj, lengths, torch.zeros((time_steps, len(offsets)), dtype=torch.float64), offsets)
+    return out
+
+
+def _padded(rows) -> torch.Tensor:
+    """M tensors ``(S_m, K)`` -> one ``(M, S_max, K)`` float64 tensor, zeros past each end."""
+    out = torch.zeros((len(rows), max(len(r) for r in rows), rows[0].shape[1]), dtype=torch.float64)
+    for m, r in enumerate(rows):
+        out[m, :len(r)] = r
     return out
 
 

@@ -134,6 +134,9 @@ class SpatiotemporalCosts:
                                   or not np.isfinite(np.asarray(floor, dtype=float)).all()):
             raise ValueError(f"Expected nll_floor to be one finite number or {self.T} (one per time step), "
                              f"got {floor!r}")
+        # the shift a known floor gives, once: the bound itself per step, min(0, floor) for one number
+        self._known_shift = None if floor is None else (
+            np.asarray(floor, dtype=float) if np.ndim(floor) == 1 else np.asarray(min(0.0, float(floor))))
         self.quad_dt = float(settings.quad_dt or dt)
         # trans[t, k] = -log p(t + k | t) for k in 0..max(offsets), inf where not permitted
         trans = np.full((self.T, max(offsets) + 1), np.inf)
@@ -252,11 +255,8 @@ class SpatiotemporalCosts:
         need_all = self.settings.heuristic or self.settings.nll_floor is None
         if need_all:
             self._ensure_vertices(np.arange(self.roadmap.n))
-        floor = self.settings.nll_floor
-        if floor is not None and np.ndim(floor) == 1:
-            shift = np.asarray(floor, dtype=float)
-        elif floor is not None:
-            shift = np.asarray(min(0.0, float(floor)))
+        if self._known_shift is not None:
+            shift = self._known_shift
         else:
             shift = np.asarray(min(0.0, float(np.min(self._vraw))) if self.roadmap.n else 0.0)
         if self._shift is None or not np.array_equal(shift, self._shift):

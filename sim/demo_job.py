@@ -5,8 +5,8 @@
 3. ``plan.py --evaluate`` runs the learned model, the arbitrary-landmark baseline and the
    learned model without obstacle avoidance on 10 seeded scenarios in PyBullet, prints the
    table and writes the results, TensorBoard logs and a GIF of a run. (All five of the paper's
-   rows: ``python plan.py --evaluate --task powder --scenarios 10``; they take ~15 min here,
-   these three ~9 min, so that ``make demo`` stays within 15 min on a 2-core machine.)
+   rows: ``python plan.py --evaluate --task powder --scenarios 10``; ~20 min here beside other jobs,
+   these three ~12 min, so that ``make demo`` stays within 15 min on a 2-core machine.)
 """
 
 from __future__ import annotations
