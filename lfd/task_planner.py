@@ -13,7 +13,9 @@ per-step Gaussians ``N(mu_t, Sigma_t)`` as chains through the time steps (see
 ``biased_configurations``); the task part (the tool point relative to the virtual landmark) is
 mapped into the world through the current ``K_virt``, IK places the tool point there, pulled
 towards the sampled joints in the null space, and ``project_to_model`` then matches the sample in
-the step's learned metric. A share of the chains starts from other arm postures (and more are
+the step's learned metric, never stepping from a collision-free configuration into a colliding
+one (so a sample whose arm was moved off an obstacle descends towards the demonstration only as
+far as the obstacle lets it). A share of the chains starts from other arm postures (and more are
 drawn while some time step has too few collision-free vertices). The rest of the roadmap is
 joint postures around the task, ``N(mu_t, region_inflation^2 Sigma_t)``, which join the chains,
 and uniform samples. When the task-relevant landmarks move by more than ``regrow_distance`` from
@@ -60,7 +62,9 @@ class TaskPlannerSettings:
     arm posture by ``N(0, posture_spread^2)`` rad per joint (one offset per chain), reaching the
     same tool points with the arm elsewhere; min_free_per_step, extra_posture_rounds: while some
     time step has fewer than ``min_free_per_step`` collision-free biased vertices (obstacles where
-    the demonstrated arm goes), up to ``extra_posture_rounds`` more such posture batches are drawn;
+    the demonstrated arm goes), up to ``extra_posture_rounds`` more posture batches are drawn,
+    free-posture ones (the demonstrated tool pose held by any arm posture IK finds from a uniform
+    start) alternating with moved-posture ones;
     regrow_distance: landmark motion (m) that triggers new biased samples; regrow_vertices: how
     many; max_vertices: the roadmap never grows past this (default 3 x n_vertices), so a long run
     of landmark moves cannot grow memory without bound; fk_cache_rows: rows of cached FK at most;
@@ -108,7 +112,8 @@ class TaskPlannerSettings:
 
 
 def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.Tensor,
-                     landmarks: torch.Tensor, iters: int = 10, max_step: float = 0.2):
+                     landmarks: torch.Tensor, iters: int = 10, max_step: float = 0.2,
+                     batch_collision_fn=None):
     """Configurations near ``q`` whose features are closest to ``f_target`` in step t's metric.
 
     Minimizes ``|| Sigma_t^-1/2 (f(q) - f_target) ||^2`` (``model.sigma_inv[t]``, Eq. 2 features
@@ -116,6 +121,9 @@ def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.
     Where IK places the tool point exactly and leaves the joints to a null-space pull, this trades
     tool-point error against joint deviation as the learned covariance does: where the
     demonstrations kept the wrist turned and the tool point loose, so does the result.
+    With ``batch_collision_fn`` (``(B, d) -> (B,) bool``, True = in collision), a configuration
+    that starts collision-free only takes steps that keep it so: it descends towards the
+    demonstrated posture until an obstacle stops it, instead of into the obstacle.
     Returns ``(q (C, d), improved (C,) bool)``; joints stay within their limits.
     """
     kin = model.kin
@@ -137,6 +145,9 @@ def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.
     r, lever = residual(q)
     cost0 = cost = (r * r).sum(-1)  # (C,)
     lam = torch.full_like(cost, 1e-2)
+    guard = None  # (C,) bool: starts collision-free, must stay so
+    if batch_collision_fn is not None and iters > 0:
+        guard = ~torch.as_tensor(np.asarray(batch_collision_fn(q.cpu().numpy()), dtype=bool), device=q.device)
     for _ in range(iters):
         J = kin.jacobian(q)  # (C, 6, d)
         J_tool = J[:, :3] + torch.cross(J[:, 3:], lever[..., None].expand_as(J[:, 3:]), dim=1)
@@ -151,6 +162,11 @@ def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.
         r_new, lever_new = residual(q_new)
         cost_new = (r_new * r_new).sum(-1)
         take = cost_new < cost
+        if guard is not None:
+            check = take & guard
+            if bool(check.any()):
+                hit = np.asarray(batch_collision_fn(q_new[check].cpu().numpy()), dtype=bool)
+                take[check.nonzero()[:, 0][torch.as_tensor(hit, device=q.device)]] = False
         q = torch.where(take[:, None], q_new, q)
         r = torch.where(take[:, None], r_new, r)
         lever = torch.where(take[:, None], lever_new, lever)
@@ -161,7 +177,8 @@ def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.
 
 def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
                           generator: torch.Generator, step_jitter: float = 0.3,
-                          project_iters: int = 10, posture_spread: float = 0.0):
+                          project_iters: int = 10, posture_spread: float = 0.0,
+                          batch_collision_fn=None, free_posture: bool = False):
     """About ``n`` configurations where the model wants the robot for ``landmarks``.
 
     ``landmarks``: ``(Z, 4, 4)`` kept landmarks in model order. The samples come as *chains*, one
@@ -172,9 +189,18 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
     mapped into the world through the current ``K_virt``, the target of the tool point; IK solves
     the chain's steps in order, each from the previous step's solution, and ``project_to_model``
     (``project_iters`` Gauss-Newton steps) then moves each solution to the configuration whose
-    features best match the sample in the step's learned metric. Consecutive
+    features best match the sample in the step's learned metric; with ``batch_collision_fn``
+    (``(B, d) -> (B,) bool``) a collision-free solution only takes collision-free steps. Consecutive
     configurations of a chain are therefore near each other in joint space and the roadmap gets
     connected corridors through the task, not scattered islands.
+
+    ``free_posture``: arm postures the demonstrations never showed. IK then targets the sample's
+    whole tool pose (the tool point where the sample puts it, the gripper turned as the sample's
+    joints turn it), each chain's first step from a uniform random configuration and every later
+    step from the one before, with no pull towards the sampled joints; the (guarded) projection
+    follows. Where an obstacle stands where the demonstrated arm goes (a low lamp shade between
+    the shoulder and a far bowl) these still hold the tool as the demonstrator did; the cost
+    judges how far they are from the demonstrated posture.
 
     Returns ``(Q (C*T, d), valid (C*T,) bool, T, reached (C*T,) bool)``, chain-major: sample
     ``c * T + t`` is chain c's configuration at step t; ``valid`` marks samples worth a vertex
@@ -199,13 +225,24 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
     p_world = f[..., d:] @ T_world_virt[:3, :3].T + T_world_virt[:3, 3]  # (C, T, 3)
     weights = torch.tensor([1, 1, 1, 0, 0, 0], dtype=model.dtype, device=model.device)
     T_target = torch.eye(4, dtype=model.dtype, device=model.device).repeat(chains, 1, 1)
-    out, ok, hit, q_prev = [], [], [], None
+    if free_posture:  # the whole pose: the gripper turned as the sampled joints turn it
+        R_world_ee = kin.fk(f[..., :d].reshape(-1, d)).reshape(chains, T, 4, 4)[..., :3, :3]  # (C, T, 3, 3)
+        q_prev = kin.sample_uniform(chains, generator=generator).to(model.device)  # (C, d)
+    else:
+        q_prev = None
+    out, ok, hit = [], [], []
     for t in range(T):
         T_target[:, :3, 3] = p_world[:, t]
-        seed = q_rest[:, t] if q_prev is None else q_prev
-        res = solve_ik(kin, T_target, seed, p_ee_tool=model.tool, weights=weights, q_rest=q_rest[:, t],
-                       config=IKConfig(max_iters=40 if q_prev is None else 20, min_iters=5, pos_tol=5e-3))
-        q, better = project_to_model(model, res.q, t, f[:, t], landmarks, iters=project_iters)
+        if free_posture:
+            T_target[:, :3, :3] = R_world_ee[:, t]
+            res = solve_ik(kin, T_target, q_prev, p_ee_tool=model.tool,
+                           config=IKConfig(max_iters=60, min_iters=5, pos_tol=5e-3, rot_tol=0.05))
+        else:
+            seed = q_rest[:, t] if q_prev is None else q_prev
+            res = solve_ik(kin, T_target, seed, p_ee_tool=model.tool, weights=weights, q_rest=q_rest[:, t],
+                           config=IKConfig(max_iters=40 if q_prev is None else 20, min_iters=5, pos_tol=5e-3))
+        q, better = project_to_model(model, res.q, t, f[:, t], landmarks, iters=project_iters,
+                                     batch_collision_fn=batch_collision_fn)
         q_prev = q
         out.append(q)
         ok.append(res.success | better)
@@ -365,25 +402,29 @@ class TaskPlanner:
     def _add_biased(self, n: int, budget: int | None = None) -> np.ndarray:
         """Add about ``n`` biased vertices (collision-free ones) and their chain edges: a share
         ``posture_share`` of them from chains whose arm posture is moved by ``posture_spread``
-        (an obstacle may sit where the demonstrated elbow was), and extra posture rounds while
-        some step lacks free vertices, as long as the samples stay within ``budget`` (default
-        ``2 n``). Returns ``(T,) bool``: the steps whose tool-point target some execution's IK
-        reached."""
+        (an obstacle may sit where the demonstrated elbow was), and extra rounds while some step
+        lacks free vertices, as long as the samples stay within ``budget`` (default ``2 n``):
+        free-posture chains (``biased_configurations(free_posture=True)``: the demonstrated tool
+        pose held by arm postures from anywhere) alternating with moved-posture ones. Every
+        round's projection is guarded by the collision check. Returns ``(T,) bool``: the steps
+        whose tool-point target some execution's IK reached."""
         s = self.settings
         n_moved = int(round(s.posture_share * n))
         T = self.model.mu.shape[0]
         per_step = np.zeros(T, dtype=int)  # collision-free biased vertices per time step
         reached_steps = np.zeros(T, dtype=bool)
         added = 0
-        rounds = [(n - n_moved, 0.0), (n_moved, s.posture_spread)]
-        rounds += [(n_moved, s.posture_spread)] * s.extra_posture_rounds
-        for i, (m, spread) in enumerate(rounds):
+        rounds = [(n - n_moved, 0.0, False), (n_moved, s.posture_spread, False)]
+        rounds += [(n_moved, s.posture_spread, k % 2 == 0) for k in range(s.extra_posture_rounds)]
+        for i, (m, spread, free_posture) in enumerate(rounds):
             drawn = sum(r[0] for r in rounds[:i])
             if m <= 0 or (i >= 2 and (per_step.min() >= s.min_free_per_step
                                       or drawn + m > (2 * n if budget is None else budget))):
                 continue  # extra rounds only while some step has too few free vertices
             Q, valid, steps, reached = biased_configurations(self.model, self._landmarks, m, self._gen,
-                                                             posture_spread=spread)
+                                                             posture_spread=spread,
+                                                             batch_collision_fn=self.roadmap.in_collision,
+                                                             free_posture=free_posture)
             reached_steps |= reached.reshape(-1, steps).any(0)
             free = valid.copy()
             free[valid] = ~self.roadmap.in_collision(Q[valid])
