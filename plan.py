@@ -16,7 +16,8 @@ def parse(argv=None):
     ap = ArgumentParser(prog="plan.py", description=__doc__.split("\n\n")[0])
     ap.add_argument("--model", type=Path, help="model folder written by train.py (single-plan mode)")
     ap.add_argument("--scenario-seed", type=int, default=0, help="which scenario to plan in")
-    ap.add_argument("--roadmap-size", type=int, default=1000, help="PRM* vertices (default 1000)")
+    ap.add_argument("--roadmap-size", type=int, default=None,
+                    help="PRM* vertices (default: 1000 per 24 time steps of the model)")
     ap.add_argument("--gui", action="store_true", help="watch in the PyBullet GUI")
     ap.add_argument("--execute", action="store_true", help="also execute the plan closed-loop")
     ap.add_argument("--plot", action="store_true", help="plot the plan against the learned means")
@@ -31,7 +32,7 @@ def parse(argv=None):
     ap.add_argument("--video", action="store_true", help="write a GIF of the first scenario of each variant")
     ap.add_argument("--out", type=Path, default=None, help="output folder")
     args = ap.parse_args(argv)
-    if args.roadmap_size < 10:
+    if args.roadmap_size is not None and args.roadmap_size < 10:
         raise UsageError(f"--roadmap-size must be at least 10, got {args.roadmap_size}")
     if args.evaluate:
         if args.task is None:

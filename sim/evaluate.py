@@ -53,13 +53,14 @@ VARIANTS = (
 
 @dataclass(frozen=True)
 class EvalSettings:
-    """roadmap_size: PRM* vertices per scenario; seed: base seed of the scenario set;
+    """roadmap_size: PRM* vertices per scenario (None: ``lfd.task_planner.default_vertices`` of
+    each model's time steps); seed: base seed of the scenario set;
     n_scenarios; workers: processes; video: write a GIF of the first scenario per variant."""
 
     task: str = "powder"
     n_scenarios: int = 10
     seed: int = 0
-    roadmap_size: int = 1000
+    roadmap_size: int | None = None
     workers: int = 2
     video: bool = False
     variants: tuple = tuple(v.name for v in VARIANTS)
@@ -83,7 +84,7 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, seed: 
     return out
 
 
-def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roadmap_size: int,
+def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roadmap_size: int | None,
             video_path: str | None = None, with_path: bool = False) -> dict:
     """One scenario with one variant, in this process. Returns a JSON-ready dict."""
     import torch
@@ -112,6 +113,7 @@ def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roa
             imageio.mimsave(video_path, frames[::2], duration=0.2, loop=0)
     out = res.to_dict(with_path=with_path)
     out.update(scenario=scenario.seed, variant=variant.name, wall_s=time.perf_counter() - tic,
+               roadmap_size=planner.n_vertices,
                roadmap_vertices=planner.roadmap.n if planner.roadmap is not None else 0)
     return out
 
@@ -221,7 +223,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     return payload
 
 
-def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int, gui: bool = False,
+def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int | None, gui: bool = False,
                   execute: bool = False, progress=None) -> tuple[dict, object, object]:
     """Build the roadmap in the scenario's world, plan once from home (and optionally execute).
 

@@ -255,3 +255,75 @@ def test_unreachable_is_judged_even_when_the_roadmap_is_full(kin):
     moved[0, :3, 3] += [0.0, -0.3, 0.0]
     planner.update_landmarks(["bowl"], moved)
     assert planner.plan(q0, 0).ok and planner.roadmap.n == n
+
+
+def test_guarded_projection_stops_at_the_obstacle_instead_of_entering_it(kin):
+    """An 'obstacle' in joint space (left_s0 above a bound) between free starts and their target:
+    unguarded, the projection walks into it; guarded, every free start stays free and still
+    gets closer to the target, and a start already in collision projects as unguarded."""
+    from lfd.task_planner import project_to_model
+    model = _model(kin)
+    landmarks = torch.eye(4, dtype=torch.float64)[None]
+    g = torch.Generator().manual_seed(4)
+    q_target = model.mu[1:2, :7].repeat(6, 1) + 0.05 * torch.randn(6, 7, generator=g, dtype=torch.float64)
+    f_target = model.features(q_target, landmarks=landmarks).detach()  # (6, 10)
+    bound = float(q_target[:, 0].min()) - 0.3
+    calls = []
+
+    def batch_collision_fn(Q):
+        calls.append(len(Q))
+        return np.asarray(Q)[:, 0] > bound  # (B,) True = in collision
+    q0 = q_target.clone()
+    q0[:, 0] = bound - 0.4                                 # five free starts ...
+    q0[5, 0] = bound + 0.1                                 # ... and one in the obstacle
+    q_plain, _ = project_to_model(model, q0, 1, f_target, landmarks, iters=15)
+    assert (q_plain[:5, 0] > bound).all()                  # unguarded: into the obstacle
+    q_guard, improved = project_to_model(model, q0, 1, f_target, landmarks, iters=15,
+                                         batch_collision_fn=batch_collision_fn)
+    assert not batch_collision_fn(q_guard[:5].numpy()).any()
+    assert bool(improved.all()) and calls
+    assert ((q_guard[:5, 0] - bound).abs() < 0.2).all()    # it went as far as the obstacle let it
+    torch.testing.assert_close(q_guard[5], q_plain[5])     # a colliding start: no guard
+
+
+def test_free_posture_chains_hold_the_demonstrated_tool_pose_in_other_arm_postures(kin):
+    """With a near-deterministic model, free-posture samples put the tool point where the model
+    wants it and turn the gripper as the mean joints do (IK on the whole pose), from arm postures
+    spread far from the mean; the default chains stay near the mean posture."""
+    from lfd.task_planner import biased_configurations
+    model = _model(kin)
+    T = model.mu.shape[0]
+    model.sigma_inv = torch.eye(10, dtype=torch.float64).repeat(T, 1, 1) / 1e-4
+    landmarks = torch.eye(4, dtype=torch.float64)[None].clone()
+    landmarks[0, :3, 3] = torch.tensor([0.7, 0.4, -0.1], dtype=torch.float64)
+    mean_pose = kin.fk(model.mu[:, :7])  # (T, 4, 4)
+    g = torch.Generator().manual_seed(0)
+    Q, valid, steps, reached = biased_configurations(model, landmarks, 40 * T, g, free_posture=True,
+                                                     project_iters=0)
+    assert steps == T and Q.shape == (40 * T, 7)
+    assert reached.mean() > 0.1 and (valid == reached).all()
+    Qr = torch.as_tensor(Q[reached])
+    t = torch.as_tensor(np.tile(np.arange(T), 40)[reached])
+    pose = kin.fk(Qr)
+    cos = ((torch.einsum("nij,nij->n", pose[:, :3, :3], mean_pose[t, :3, :3]) - 1) / 2).clamp(-1, 1)
+    assert float(torch.arccos(cos).max()) < 0.06                                   # gripper as demonstrated
+    tool_world = pose[:, :3, 3] + (pose[:, :3, :3] @ model.tool)
+    want = model.mu[t, 7:] @ torch.linalg.inv(model.K_virt_inv(landmarks))[:3, :3].T \
+        + torch.linalg.inv(model.K_virt_inv(landmarks))[:3, 3]
+    assert float((tool_world - want).norm(dim=1).max()) < 0.006                    # tool point where wanted
+    spread = (Qr - model.mu[t, :7]).abs().max(dim=1).values
+    assert float(spread.median()) > 0.5                                           # other arm postures
+    Qd, _, _, _ = biased_configurations(model, landmarks, 10 * T, torch.Generator().manual_seed(0))
+    near = np.abs(Qd - np.tile(model.mu[:, :7].numpy(), (10, 1))).max(1)
+    assert np.median(near) < 0.3                                                   # default: near the mean posture
+
+
+def test_default_roadmap_size_scales_with_the_time_steps(kin):
+    from lfd.task_planner import default_vertices
+    assert default_vertices(24) == 1000 and default_vertices(48) == 2000 and default_vertices(2) >= 2
+    model = _model(kin, T=12)
+    assert TaskPlanner(model, lambda q: False, lambda a, b: False).n_vertices == 500
+    assert TaskPlanner(model, lambda q: False, lambda a, b: False,
+                       settings=TaskPlannerSettings(n_vertices=77)).n_vertices == 77
+    with pytest.raises(ValueError, match="n_vertices"):
+        TaskPlannerSettings(n_vertices=1)
