@@ -137,8 +137,10 @@ class ClosedLoopPlanner:
         path is collision-free. Returns ``(path, cost, expanded, searches)``."""
         rm, lazy = self.roadmap, self.settings.cost.edge_checks == "path"
         expanded = 0
+        succ = {}  # {v: {t: successors}}: the searches of this plan re-expand mostly the same nodes
         for searches in range(1, self.settings.max_path_checks + 1):
-            res = search(self.costs, START, t_start, GOAL if to_goal else None, self.settings.max_expansions)
+            res = search(self.costs, START, t_start, GOAL if to_goal else None, self.settings.max_expansions,
+                         succ_cache=succ)
             expanded += res.n_expanded
             if not lazy or not res.nodes:
                 return res.nodes, res.cost, expanded, searches
@@ -146,6 +148,8 @@ class ClosedLoopPlanner:
             for (a, ta), (b, tb) in zip(res.nodes[:-1], res.nodes[1:]):
                 if a >= 0 and b >= 0 and a != b and not rm.edge_free(a, b):
                     self.costs.drop_edge(a, b)
+                    succ.pop(a, None)
+                    succ.pop(b, None)
                     collided = True
                     # an obstacle is near: settle every edge of both ends now, so the next
                     # search does not try their neighbours' colliding edges one by one
@@ -155,6 +159,8 @@ class ClosedLoopPlanner:
                         for w in before:
                             if w not in kept:
                                 self.costs.drop_edge(v, w)
+                                succ.pop(w, None)
+                        succ.pop(v, None)
             if not collided:
                 return res.nodes, res.cost, expanded, searches
         raise SearchBudgetExceeded(f"no collision-free path after {self.settings.max_path_checks} "

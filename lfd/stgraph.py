@@ -72,16 +72,20 @@ class LazyProductGraph(nx.DiGraph):
 
     ``goal_vertex``: None (target ``SINK``: any vertex at step T-1) or a vertex id whose node at
     T-1 is the target. ``max_expansions`` bounds the number of nodes whose successors are built.
+    ``succ_cache``: optional ``{v: {t: successors}}`` shared by the searches of one plan (Lazy
+    PRM searches again after dropping colliding edges and re-expands mostly the same nodes); the
+    caller must drop the entries of a vertex whose edges change (see ``ClosedLoopPlanner``).
     """
 
     def __init__(self, costs: SpatiotemporalCosts, goal_vertex: int | None = None,
-                 max_expansions: int = 10 ** 7):
+                 max_expansions: int = 10 ** 7, succ_cache: dict | None = None):
         super().__init__()
         self.costs = costs
         self.T = costs.T
         self.goal_vertex = goal_vertex
         self.max_expansions = int(max_expansions)
         self.n_expanded = 0
+        self._cache = succ_cache
         self._node = _Nodes(self)
         self._adj = self._succ = _Successors(self)
 
@@ -105,6 +109,10 @@ class LazyProductGraph(nx.DiGraph):
         if self.n_expanded > self.max_expansions:
             raise SearchBudgetExceeded(f"more than {self.max_expansions} nodes expanded")
         v, t = node
+        if self._cache is not None:
+            hit = self._cache.get(v, {}).get(t)
+            if hit is not None:
+                return hit
         c = self.costs
         nbrs, C = c.spatial(v)
         col = C[:, t].tolist() if len(nbrs) else []
@@ -119,6 +127,8 @@ class LazyProductGraph(nx.DiGraph):
                     succ[(v, t + k)] = x
         if t == self.T - 1 and self.goal_vertex is None:
             succ[SINK] = 0.0
+        if self._cache is not None:
+            self._cache.setdefault(v, {})[t] = succ
         return succ
 
 
@@ -138,15 +148,17 @@ class SearchResult:
 
 
 def search(costs: SpatiotemporalCosts, start_vertex: int, t_start: int,
-           goal_vertex: int | None = None, max_expansions: int = 10 ** 7) -> SearchResult:
+           goal_vertex: int | None = None, max_expansions: int = 10 ** 7,
+           succ_cache: dict | None = None) -> SearchResult:
     """Minimum-cost path from ``(start_vertex, t_start)`` to step T-1 (or ``(goal_vertex, T-1)``).
 
     Call ``costs.prepare()`` first. Raises ``SearchBudgetExceeded`` past ``max_expansions`` and
     lets ``CostError`` from the step cost through; returns an empty result when no path exists.
+    ``succ_cache``: see ``LazyProductGraph`` (valid for one goal and one ``prepare``).
     """
     if not 0 <= t_start < costs.T:
         raise ValueError(f"Expected t_start in [0, {costs.T - 1}], got {t_start}")
-    G = LazyProductGraph(costs, goal_vertex, max_expansions)
+    G = LazyProductGraph(costs, goal_vertex, max_expansions, succ_cache)
     source = (start_vertex, t_start)
     if source not in G:
         raise ValueError(f"Expected start_vertex to be a vertex of the roadmap, got {start_vertex}")
