@@ -21,7 +21,8 @@ joint postures around the task, ``N(mu_t, region_inflation^2 Sigma_t)``, which j
 and uniform samples. When the task-relevant landmarks move by more than ``regrow_distance`` from
 every set the roadmap was grown for, new biased samples are added to the same roadmap; it is
 never rebuilt. When no sampled execution's IK reaches some step's tool-point target (the
-landmark is out of the arm's reach), ``plan`` returns the status ``unreachable``.
+landmark is out of the arm's reach) and the learned transitions cannot skip that step
+(``can_bypass``), ``plan`` returns the status ``unreachable``.
 
 FK of every configuration handed to the cost (roadmap vertices and the quadrature points of
 edges) is computed once and cached per configuration (bounded): those points repeat across
@@ -45,7 +46,7 @@ from lfd.roadmap import Roadmap, RoadmapSettings
 TASK_STEP_SD = 0.05  # m: a step whose tool-point sd (largest axis) is below this is task-relevant
 
 __all__ = ["TaskPlannerSettings", "TaskPlanner", "biased_configurations", "chain_edges",
-           "project_to_model", "default_vertices"]
+           "project_to_model", "default_vertices", "can_bypass"]
 
 COST_FLOORS = ("per-step", "global")
 DEFAULT_VERTICES, DEFAULT_VERTICES_STEPS = 1000, 24  # roadmap size for a model of this many steps
@@ -262,6 +263,29 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
     valid = torch.stack(ok, dim=1).reshape(-1).cpu().numpy()
     reached = torch.stack(hit, dim=1).reshape(-1).cpu().numpy()
     return Q, valid, T, reached
+
+
+def can_bypass(log_trans: np.ndarray, offsets, blocked, t_start: int) -> bool:
+    """Whether the task's time steps lead from ``t_start`` to the last one avoiding ``blocked``.
+
+    ``log_trans (T, K)``: ``log p(t + offsets[k] | t)``, ``-inf`` where not permitted. A step whose
+    tool-point target no sampled execution reached does not make the task unreachable when the
+    learned transitions can skip it (seen: one sparsely aligned step of the pour, tight by accident,
+    at the source container while the bowl was far); a run of such steps, as when the bowl is out of
+    the arm's reach, cannot be skipped.
+    """
+    T = len(log_trans)
+    bad = np.zeros(T, dtype=bool)
+    bad[np.asarray(blocked, dtype=int)] = True
+    ok = np.zeros(T, dtype=bool)  # the robot is at t_start already, reachable or not
+    ok[t_start] = True
+    for t in range(t_start, T):
+        if not ok[t]:
+            continue
+        for k, lp in zip(offsets, log_trans[t]):
+            if k > 0 and t + k < T and np.isfinite(lp) and not bad[t + k]:
+                ok[t + k] = True
+    return bool(ok[-1])
 
 
 def chain_edges(valid: np.ndarray, steps_per_chain: int) -> np.ndarray:
@@ -507,10 +531,11 @@ class TaskPlanner:
         if self.planner is None or self._missing:
             return self._no_plan("missing_landmark",
                                  self._missing or "no landmarks yet: call update_landmarks first")
-        if len(self._unreachable):
+        lt = self.model.log_trans.detach().cpu().numpy()
+        if len(self._unreachable) and not can_bypass(lt, self.model.offsets, self._unreachable, int(t_current)):
             return self._no_plan("unreachable", "the arm cannot reach the tool-point targets of time "
                                  f"step(s) {self._unreachable.tolist()} for these landmarks (IK failed "
-                                 "for every sampled execution)")
+                                 "for every sampled execution), and the task cannot skip them")
         return self.planner.plan(q_current, t_current, q_goal)
 
     def _no_plan(self, status: str, message: str) -> PlanResult:

@@ -327,3 +327,42 @@ def test_default_roadmap_size_scales_with_the_time_steps(kin):
                        settings=TaskPlannerSettings(n_vertices=77)).n_vertices == 77
     with pytest.raises(ValueError, match="n_vertices"):
         TaskPlannerSettings(n_vertices=1)
+
+
+def test_can_bypass_follows_the_permitted_transitions():
+    from lfd.task_planner import can_bypass
+    lt = np.log(np.tile([0.5, 0.4, 0.1], (6, 1)))  # offsets 0, 1, 2
+    lt[-1] = [0.0, -np.inf, -np.inf]
+    offsets = (0, 1, 2)
+    assert can_bypass(lt, offsets, [2], 0)              # 1 -> 3 skips step 2
+    assert not can_bypass(lt, offsets, [2, 3], 0)       # two in a row: no offset of 3
+    assert can_bypass(lt, offsets, [2, 3], 4)           # already past them
+    assert can_bypass(lt, offsets, [0], 0)              # the robot is at step 0 already
+    no_skip = lt.copy()
+    no_skip[:, 2] = -np.inf
+    assert not can_bypass(no_skip, offsets, [2], 0)
+    assert not can_bypass(lt, offsets, [5], 0)          # the last step itself
+
+
+def test_one_unreachable_step_that_the_task_can_skip_still_plans(kin):
+    """One step's tool-point target 3 m away (an accidentally tight, sparsely aligned step): the
+    planner plans around it when the learned transitions allow skipping it, and says
+    'unreachable' when they do not."""
+    for skip, status in ((True, "ok"), (False, "unreachable")):
+        model = _tight_model(kin)
+        model.mu = model.mu.clone()
+        model.mu[2, 7:] = torch.tensor([3.0, 0.0, 0.0], dtype=torch.float64)
+        if not skip:
+            model.log_trans = model.log_trans.clone()
+            model.log_trans[:, 2] = -math.inf
+            model.log_trans[:, :2] = torch.log(torch.tensor([0.5, 0.5], dtype=torch.float64))
+            model.log_trans[-1] = torch.tensor([0.0, -math.inf, -math.inf])
+        planner = TaskPlanner(model, lambda q: False, lambda a, b: False,
+                              settings=TaskPlannerSettings(n_vertices=150, seed=0))
+        bowl = np.eye(4)[None].copy()
+        bowl[0, :3, 3] = [0.7, 0.4, -0.1]
+        planner.update_landmarks(["bowl"], bowl)
+        res = planner.plan(model.mu[0, :7].numpy(), 0)
+        assert res.status == status, res.message
+        if res.ok:
+            assert 2 not in set(res.time_steps.tolist())
