@@ -1,6 +1,7 @@
 """Can the arm dump over a bowl at all, with the obstacles where they are? (scenario solvability)
 
-A test scenario is only fair when some motion can do the task. ``DumpReach`` answers the
+A test scenario is only fair when some motion can do the task. ``start_free`` checks the
+simplest part: the arm's start configuration touches nothing. ``DumpReach`` answers the
 necessary part of that question without any learned model: is there a collision-free arm
 configuration that holds the tool the way the demonstrator holds it when dumping (powder) or
 pouring (liquid) over the bowl, facing the bowl from any bearing within ``yaw_span`` of the
@@ -42,11 +43,7 @@ class DumpReach:
         self._home = {name: tuple(self.world.object_pose(name)[:3, 3]) for name in self.world.objects}
         self.calls = 0
 
-    def __call__(self, placements: dict, bowl_xy) -> bool:
-        from lfd.ik import IKConfig, solve_ik
-        from sim.demo_paths import TASK_POINTS, dump_pose
-
-        self.calls += 1
+    def _set_scene(self, placements: dict, bowl_xy) -> None:
         scene = {**{n: w for n, w in self._home.items() if n not in placements}, **placements,
                  "bowl": tuple(bowl_xy)}
         for name in [n for n in self.world.objects if n not in scene]:
@@ -56,6 +53,21 @@ class DumpReach:
                 self.world.place_object(name, where)
             else:
                 self.world.move_object(name, where)
+
+    def start_free(self, placements: dict) -> bool:
+        """Whether the arm's start (``layout.HOME_Q``, holding the tool) is collision-free in the
+        scene, with the clearance the planner keeps (seen: a vase drawn against the forearm)."""
+        from sim import layout as L
+
+        self._set_scene(placements, placements["bowl"])
+        return not self.fns.collision_fn(np.asarray(L.HOME_Q, dtype=float))
+
+    def __call__(self, placements: dict, bowl_xy) -> bool:
+        from lfd.ik import IKConfig, solve_ik
+        from sim.demo_paths import TASK_POINTS, dump_pose
+
+        self.calls += 1
+        self._set_scene(placements, bowl_xy)
         g = torch.Generator().manual_seed(self.seed)
         yaws = np.linspace(-self.yaw_span, self.yaw_span, self.n_seeds)
         tool_point = np.asarray(TASK_POINTS[self.task])

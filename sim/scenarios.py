@@ -21,7 +21,8 @@ Drawing rule (also stated in the README):
   demonstrator does to dump or pour over the bowl (at either place) without touching an
   obstacle, for any bearing within 30 deg of the demonstrator's (``sim.reach.DumpReach``:
   seeded IK and the planner's collision check; a low lamp shade between the shoulder and a
-  far bowl does that). No learned model takes part in the drawing.
+  far bowl does that), and so is a scene where the arm's start configuration (``layout.HOME_Q``)
+  touches an object (a vase against the forearm). No learned model takes part in the drawing.
 
 The same ``(task, seed)`` always gives the same scenario; scenario ``i`` of a set with base
 seed ``S`` uses seed ``S * 100_003 + i``.
@@ -143,7 +144,7 @@ def draw_scenario(task: str, seed: int, time_steps: int = 24, reach=None) -> Sce
                     break
                 placements[name] = tuple(xy)
                 taken.append((xy, r))
-        if not ok or not all(reach(placements, b) for b, _ in bowls):
+        if not ok or not reach.start_free(placements) or not all(reach(placements, b) for b, _ in bowls):
             continue
         return Scenario(task=task, seed=int(seed), placements=placements,
                         bowl_after=None if bowl_after is None else tuple(bowl_after),

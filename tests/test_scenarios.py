@@ -79,3 +79,15 @@ def test_bad_scenario_arguments(reach):
         draw_scenario("soup", 0)
     with pytest.raises(ValueError, match="reach checks the 'powder' task"):
         draw_scenario("pour", 0, reach=reach)
+
+
+def test_a_scene_whose_objects_touch_the_arms_start_is_not_drawn():
+    """Pour scenario 24 once put the vase against the forearm of the start configuration (every
+    plan: 'start_in_collision'); such scenes are redrawn."""
+    from sim.reach import DumpReach
+    with DumpReach("pour") as r:
+        open_scene = {"bowl": (0.56, 0.22)}
+        assert r.start_free(open_scene)
+        assert not r.start_free({**open_scene, "vase": (0.468, 0.7245)})
+        assert r.start_free(open_scene)  # nothing of the blocked scene stays behind
+        assert r.start_free(draw_scenario("pour", 24, reach=r).placements)
