@@ -531,8 +531,8 @@ class TaskPlanner:
         if self.planner is None or self._missing:
             return self._no_plan("missing_landmark",
                                  self._missing or "no landmarks yet: call update_landmarks first")
-        lt = self.model.log_trans.detach().cpu().numpy()
-        if len(self._unreachable) and not can_bypass(lt, self.model.offsets, self._unreachable, int(t_current)):
+        if len(self._unreachable) and not can_bypass(self.model.log_trans.detach().cpu().numpy(),
+                                                     self.model.offsets, self._unreachable, int(t_current)):
             return self._no_plan("unreachable", "the arm cannot reach the tool-point targets of time "
                                  f"step(s) {self._unreachable.tolist()} for these landmarks (IK failed "
                                  "for every sampled execution), and the task cannot skip them")
