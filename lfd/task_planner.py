@@ -10,7 +10,7 @@ the model wants the robot for the current landmarks, and re-plans lazily when la
 
 Biased sampling (in the spirit of the paper's [2]): feature vectors are drawn from the learned
 per-step Gaussians ``N(mu_t, Sigma_t)`` as chains through the time steps (see
-``biased_configurations``); the task part (the tool point relative to the virtual landmark) is
+``lfd.biased.biased_configurations``); the task part (the tool point relative to the virtual landmark) is
 mapped into the world through the current ``K_virt``, IK places the tool point there, pulled
 towards the sampled joints in the null space, and ``project_to_model`` then matches the sample in
 the step's learned metric, never stepping from a collision-free configuration into a colliding
@@ -38,7 +38,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
-from lfd.ik import IKConfig, solve_ik
+from lfd.biased import biased_configurations, chain_edges, project_to_model
 from lfd.model import TaskModel, logdet_tensor
 from lfd.planner import ClosedLoopPlanner, PlannerSettings, PlanResult
 from lfd.roadmap import Roadmap, RoadmapSettings
@@ -123,148 +123,6 @@ class TaskPlannerSettings:
                              f"{self.regrow_distance}, {self.regrow_vertices}")
 
 
-def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.Tensor,
-                     landmarks: torch.Tensor, iters: int = 10, max_step: float = 0.2,
-                     batch_collision_fn=None):
-    """Configurations near ``q`` whose features are closest to ``f_target`` in step t's metric.
-
-    Minimizes ``|| Sigma_t^-1/2 (f(q) - f_target) ||^2`` (``model.sigma_inv[t]``, Eq. 2 features
-    for ``landmarks (Z, 4, 4)``) by damped Gauss-Newton from ``q: (C, d)``; ``f_target: (C, F)``.
-    Where IK places the tool point exactly and leaves the joints to a null-space pull, this trades
-    tool-point error against joint deviation as the learned covariance does: where the
-    demonstrations kept the wrist turned and the tool point loose, so does the result.
-    With ``batch_collision_fn`` (``(B, d) -> (B,) bool``, True = in collision), a configuration
-    that starts collision-free only takes steps that keep it so: it descends towards the
-    demonstrated posture until an obstacle stops it, instead of into the obstacle.
-    Returns ``(q (C, d), improved (C,) bool)``; joints stay within their limits.
-    """
-    kin = model.kin
-    d = kin.dof
-    W = model.sigma_inv[t].detach()  # (F, F)
-    K = model.K_virt_inv(landmarks).detach()  # (4, 4)
-    A, b = K[:3, :3], K[:3, 3]
-    eye = torch.eye(d, dtype=q.dtype, device=q.device)
-
-    def residual(q):
-        T_world_ee = kin.fk(q)  # (C, 4, 4)
-        lever = T_world_ee[:, :3, :3] @ model.tool.detach()  # (C, 3) tool point offset, world
-        x = (T_world_ee[:, :3, 3] + lever) @ A.T + b  # (C, 3) tool point in the virtual frame
-        r = (torch.cat([q, x], dim=1) - f_target) @ W.T  # (C, F)
-        return r, lever
-
-    q = q.detach().clone()
-    f_target = f_target.detach()
-    r, lever = residual(q)
-    cost0 = cost = (r * r).sum(-1)  # (C,)
-    lam = torch.full_like(cost, 1e-2)
-    guard = None  # (C,) bool: starts collision-free, must stay so
-    if batch_collision_fn is not None and iters > 0:
-        guard = ~torch.as_tensor(np.asarray(batch_collision_fn(q.cpu().numpy()), dtype=bool), device=q.device)
-    for _ in range(iters):
-        J = kin.jacobian(q)  # (C, 6, d)
-        J_tool = J[:, :3] + torch.cross(J[:, 3:], lever[..., None].expand_as(J[:, 3:]), dim=1)
-        Jf = torch.cat([eye.expand(len(q), d, d), A @ J_tool], dim=1)  # (C, F, d)
-        Jr = W @ Jf  # (C, F, d)
-        H = Jr.transpose(1, 2) @ Jr
-        g = (Jr.transpose(1, 2) @ r[..., None])[..., 0]  # (C, d)
-        dq = -torch.linalg.solve(H + lam[:, None, None] * (eye + torch.diag_embed(
-            torch.diagonal(H, dim1=1, dim2=2))), g)
-        dq = dq * (max_step / dq.abs().amax(-1).clamp_min(max_step))[:, None]
-        q_new = torch.maximum(torch.minimum(q + dq, kin.upper), kin.lower)
-        r_new, lever_new = residual(q_new)
-        cost_new = (r_new * r_new).sum(-1)
-        take = cost_new < cost
-        if guard is not None:
-            check = take & guard
-            if bool(check.any()):
-                hit = np.asarray(batch_collision_fn(q_new[check].cpu().numpy()), dtype=bool)
-                take[check.nonzero()[:, 0][torch.as_tensor(hit, device=q.device)]] = False
-        q = torch.where(take[:, None], q_new, q)
-        r = torch.where(take[:, None], r_new, r)
-        lever = torch.where(take[:, None], lever_new, lever)
-        cost = torch.where(take, cost_new, cost)
-        lam = torch.where(take, lam * 0.3, lam * 10.0)
-    return q, cost < cost0
-
-
-def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
-                          generator: torch.Generator, step_jitter: float = 0.3,
-                          project_iters: int = 10, posture_spread: float = 0.0,
-                          batch_collision_fn=None, free_posture: bool = False):
-    """About ``n`` configurations where the model wants the robot for ``landmarks``.
-
-    ``landmarks``: ``(Z, 4, 4)`` kept landmarks in model order. The samples come as *chains*, one
-    sampled task execution each: a chain draws one standard-normal vector ``z`` (plus
-    ``step_jitter`` of fresh noise per step) and takes ``f_t = mu_t + sigma_t z`` at every time
-    step t, so that consecutive samples of a chain are alike, as consecutive moments of a
-    demonstration are. The joint part of ``f_t`` is the null-space posture and the task part,
-    mapped into the world through the current ``K_virt``, the target of the tool point; IK solves
-    the chain's steps in order, each from the previous step's solution, and ``project_to_model``
-    (``project_iters`` Gauss-Newton steps) then moves each solution to the configuration whose
-    features best match the sample in the step's learned metric; with ``batch_collision_fn``
-    (``(B, d) -> (B,) bool``) a collision-free solution only takes collision-free steps. Consecutive
-    configurations of a chain are therefore near each other in joint space and the roadmap gets
-    connected corridors through the task, not scattered islands.
-
-    ``free_posture``: arm postures the demonstrations never showed. IK then targets the sample's
-    whole tool pose (the tool point where the sample puts it, the gripper turned as the sample's
-    joints turn it), each chain's first step from a uniform random configuration and every later
-    step from the one before, with no pull towards the sampled joints; the (guarded) projection
-    follows. Where an obstacle stands where the demonstrated arm goes (a low lamp shade between
-    the shoulder and a far bowl) these still hold the tool as the demonstrator did; the cost
-    judges how far they are from the demonstrated posture.
-
-    Returns ``(Q (C*T, d), valid (C*T,) bool, T, reached (C*T,) bool)``, chain-major: sample
-    ``c * T + t`` is chain c's configuration at step t; ``valid`` marks samples worth a vertex
-    (IK reached the tool-point target within 5 mm, or the projection improved the match);
-    ``reached`` the IK successes alone.
-    """
-    kin = model.kin
-    T, F = model.mu.shape
-    d = F - 3
-    chains = max(1, -(-n // T))
-    sigma = torch.linalg.inv(model.sigma_inv)  # (T, F, F) lower Cholesky factors of Sigma_t
-    z = torch.randn(chains, 1, F, generator=generator, dtype=model.dtype)
-    z = (z + step_jitter * torch.randn(chains, T, F, generator=generator, dtype=model.dtype)).to(model.device)
-    f = model.mu[None] + torch.einsum("tij,ctj->cti", sigma, z)  # (C, T, F)
-    q_rest = f[..., :d]
-    if posture_spread > 0:  # IK starts from and pulls towards another arm posture (the elbow
-        # elsewhere); the projection still aims at the sample and settles in that posture's basin
-        offset = posture_spread * torch.randn(chains, 1, d, generator=generator, dtype=model.dtype)
-        q_rest = q_rest + offset.to(model.device)
-    q_rest = torch.maximum(torch.minimum(q_rest, kin.upper), kin.lower)  # (C, T, d)
-    T_world_virt = torch.linalg.inv(model.K_virt_inv(landmarks))  # (4, 4)
-    p_world = f[..., d:] @ T_world_virt[:3, :3].T + T_world_virt[:3, 3]  # (C, T, 3)
-    weights = torch.tensor([1, 1, 1, 0, 0, 0], dtype=model.dtype, device=model.device)
-    T_target = torch.eye(4, dtype=model.dtype, device=model.device).repeat(chains, 1, 1)
-    if free_posture:  # the whole pose: the gripper turned as the sampled joints turn it
-        R_world_ee = kin.fk(f[..., :d].reshape(-1, d)).reshape(chains, T, 4, 4)[..., :3, :3]  # (C, T, 3, 3)
-        q_prev = kin.sample_uniform(chains, generator=generator).to(model.device)  # (C, d)
-    else:
-        q_prev = None
-    out, ok, hit = [], [], []
-    for t in range(T):
-        T_target[:, :3, 3] = p_world[:, t]
-        if free_posture:
-            T_target[:, :3, :3] = R_world_ee[:, t]
-            res = solve_ik(kin, T_target, q_prev, p_ee_tool=model.tool,
-                           config=IKConfig(max_iters=60, min_iters=5, pos_tol=5e-3, rot_tol=0.05))
-        else:
-            seed = q_rest[:, t] if q_prev is None else q_prev
-            res = solve_ik(kin, T_target, seed, p_ee_tool=model.tool, weights=weights, q_rest=q_rest[:, t],
-                           config=IKConfig(max_iters=40 if q_prev is None else 20, min_iters=5, pos_tol=5e-3))
-        q, better = project_to_model(model, res.q, t, f[:, t], landmarks, iters=project_iters,
-                                     batch_collision_fn=batch_collision_fn)
-        q_prev = q
-        out.append(q)
-        ok.append(res.success | better)
-        hit.append(res.success)
-    Q = torch.stack(out, dim=1).reshape(chains * T, d).detach().cpu().numpy()  # (C*T, d), chain-major
-    valid = torch.stack(ok, dim=1).reshape(-1).cpu().numpy()
-    reached = torch.stack(hit, dim=1).reshape(-1).cpu().numpy()
-    return Q, valid, T, reached
-
-
 def can_bypass(log_trans: np.ndarray, offsets, blocked, t_start: int) -> bool:
     """Whether the task's time steps lead from ``t_start`` to the last one avoiding ``blocked``.
 
@@ -286,14 +144,6 @@ def can_bypass(log_trans: np.ndarray, offsets, blocked, t_start: int) -> bool:
             if k > 0 and t + k < T and np.isfinite(lp) and not bad[t + k]:
                 ok[t + k] = True
     return bool(ok[-1])
-
-
-def chain_edges(valid: np.ndarray, steps_per_chain: int) -> np.ndarray:
-    """``(p, 2)`` index pairs of consecutive valid samples within each chain (chain-major order)."""
-    idx = np.flatnonzero(valid)
-    chain = idx // steps_per_chain
-    same = chain[1:] == chain[:-1]
-    return np.stack([idx[:-1][same], idx[1:][same]], axis=1)
 
 
 class _FKCache:
