@@ -44,7 +44,14 @@ USER_ERRORS = _user_errors
 
 
 class ArgumentParser(argparse.ArgumentParser):
-    """An ``argparse`` parser whose errors are one line (no usage dump) and exit status 2."""
+    """An ``argparse`` parser whose errors are one line (no usage dump) and exit status 2.
+
+    Options are taken only as spelled in ``--help`` (``allow_abbrev=False``): an abbreviation
+    (``--scen``) would silently change meaning, or stop working, when an option is added."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # noqa: D401 - argparse's hook
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")

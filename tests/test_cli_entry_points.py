@@ -34,6 +34,8 @@ BAD = [
     ("planning-few-moves", ["benchmarks/planning.py", "--moves", "5", "--out", OUT], "--moves must be at least 20, got 5"),
     ("learning-not-an-int", ["benchmarks/learning.py", "--runs", "x"], "argument --runs: invalid int value: 'x'"),
     ("learning-restarts-0", ["benchmarks/learning.py", "--restarts", "0"], "--restarts must be at least 1, got 0"),
+    ("collision-abbreviated", ["benchmarks/collision.py", "--ru", "3", "--out", OUT],
+     "unrecognized arguments: --ru 3"),
     ("soak-not-an-int", ["benchmarks/soak.py", "--replans", "x", "--out", "{tmp}"],
      "argument --replans: invalid int value: 'x'"),
 ]
