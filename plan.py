@@ -1,7 +1,7 @@
 """Plan a learned task in a new scene, or evaluate every model variant on seeded scenarios.
 
-    python plan.py --model runs/powder [--scenario-seed S] [--roadmap-size N] [--gui] [--out DIR] [--plot]
-    python plan.py --evaluate --task powder|pour [--scenarios N] [--seed S] [--workers K] [--out DIR] [--video]
+    python plan.py --model runs/powder [--scenario-seed S] [--roadmap-size N] [--dwell D] [--gui] [--out DIR] [--plot]
+    python plan.py --evaluate --task powder|pour [--scenarios N] [--seed S] [--workers K] [--dwell D] [--out DIR] [--video]
 """
 
 from __future__ import annotations
@@ -18,6 +18,9 @@ def parse(argv=None):
     ap.add_argument("--scenario-seed", type=int, default=0, help="which scenario to plan in")
     ap.add_argument("--roadmap-size", type=int, default=None,
                     help="PRM* vertices (default: 1000 per 24 time steps of the model)")
+    ap.add_argument("--dwell", choices=("interval", "expected"), default="interval",
+                    help="what a plan charges for a time step: one sampling interval (the paper's), "
+                         "or the demonstrations' expected stay in it (see lfd/stcost.py)")
     ap.add_argument("--gui", action="store_true", help="watch in the PyBullet GUI")
     ap.add_argument("--execute", action="store_true", help="also execute the plan closed-loop")
     ap.add_argument("--plot", action="store_true", help="plot the plan against the learned means")
@@ -62,7 +65,7 @@ def main(argv=None) -> int:
             progress = None
         settings = EvalSettings(task=args.task, n_scenarios=args.scenarios, seed=args.seed,
                                 roadmap_size=args.roadmap_size, workers=args.workers, video=args.video,
-                                variants=variants)
+                                variants=variants, dwell=args.dwell)
         payload = evaluate(settings, out, models, args.demos, progress)
         print(format_table(payload["variants"], args.task))
         print(f"results: {out / 'results.json'}")
@@ -75,7 +78,7 @@ def main(argv=None) -> int:
     out = writable_dir(args.out or args.model / "plans")
     scenario = draw_scenario(task_name, args.scenario_seed)
     report, res, model = plan_scenario(args.model, scenario, args.roadmap_size, gui=args.gui,
-                                       execute=args.execute)
+                                       execute=args.execute, dwell=args.dwell)
     print(f"plan: {report['status']}  cost {report['cost']:.1f}  waypoints {report['waypoints']}  "
           f"latency {report['latency_ms']:.0f} ms  ({report['edges_evaluated']} edge costs evaluated, "
           f"roadmap of {report['roadmap_vertices']} vertices built in {report['roadmap_build_s']:.1f} s)")

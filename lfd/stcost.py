@@ -37,6 +37,19 @@ demonstrations' 50 Hz (``|s|`` ~ 67 per 0.02 s) moving 0.1 s cost more than hold
 posture for several steps, and plans held one 85-95 degree posture through the whole pour where
 the model's steps asked for 100-105 degrees (the pitcher needs ~100 to empty).
 
+Dwell. A time edge stands for one sampling interval, so a path that holds a configuration
+through a step pays that step's cost once, while a roadmap edge pays for every interval it
+takes; the paper's most probable path therefore runs through the task's steps as fast as it
+can. An executor that holds each step for the demonstrations' expected time in it
+(``sim.execute``: ``dt / (1 - p(t|t))``) then spends most of the task at configurations the
+cost barely weighed: on the 48-step pour, plans held one 94-degree posture through every
+pouring step, the cheapest to reach, where the steps asked for 100-106 degrees. With
+``dwell="expected"`` a time edge leaving step t at ``q`` also charges the step's expected
+further stay, ``D_t = p/(1-p)`` intervals (``p = p(t|t)``), each at ``-log p(t|t) + ell(q, t)``:
+the expected negative log-likelihood of the executed stay, so the cost weighs each step by the
+time the robot will spend in it. (Motion inside a step is charged on top of the stay, not
+instead of part of it: a slight over-charge for moving, which keeps costs per edge.)
+
 A* heuristic: ``lfd.stheuristic``, the cost-to-go of a relaxed problem (roadmap edges charged
 only their self-transition part), a consistent lower bound computed for all vertices at once.
 
@@ -57,9 +70,11 @@ import torch
 from lfd.roadmap import Roadmap
 from lfd.stheuristic import relaxed_cost_to_go, source_bound
 
-__all__ = ["CostSettings", "CostError", "SpatiotemporalCosts", "EDGE_CHECKS"]
+__all__ = ["CostSettings", "CostError", "SpatiotemporalCosts", "EDGE_CHECKS", "DWELLS"]
 
 EDGE_CHECKS = ("path", "expand")
+DWELLS = ("interval", "expected")
+MAX_STAY = 0.999  # p(t | t) above this counts as this in the expected dwell (at most 999 intervals)
 
 
 class CostError(ValueError):
@@ -79,7 +94,11 @@ class CostSettings:
     edge_checks: when roadmap edges are collision-checked: "expand" (every edge of a vertex the
     search expands, before costing it) or "path" (Lazy PRM: the search treats unchecked edges
     as free and the planner checks only the edges of the path it returns, dropping colliding
-    ones and searching again until the path is free; far fewer checks)."""
+    ones and searching again until the path is free; far fewer checks);
+    dwell: what a time edge charges for the step it leaves, see *Dwell* in the module docstring:
+    "interval" (the paper's: one sampling interval, charged at the step it enters) or "expected"
+    (also the step's expected further stay ``p/(1-p)`` intervals, ``p = p(t|t)``, at the
+    configuration it is left from)."""
     quad_dt: float | None = None
     nll_floor: float | tuple[float, ...] | None = None
     heuristic: bool = True
@@ -87,6 +106,7 @@ class CostSettings:
     max_batch: int = 16384
     dtype: torch.dtype = torch.float64
     edge_checks: str = "path"
+    dwell: str = "interval"
 
     def __post_init__(self):
         if self.quad_dt is not None and not self.quad_dt > 0:
@@ -97,6 +117,8 @@ class CostSettings:
             raise ValueError(f"Expected max_batch >= 1, got {self.max_batch}")
         if self.edge_checks not in EDGE_CHECKS:
             raise ValueError(f"Expected edge_checks in {EDGE_CHECKS}, got {self.edge_checks!r}")
+        if self.dwell not in DWELLS:
+            raise ValueError(f"Expected dwell in {DWELLS}, got {self.dwell!r}")
 
 
 class SpatiotemporalCosts:
@@ -146,6 +168,14 @@ class SpatiotemporalCosts:
         for k in range(trans.shape[1]):
             trans[max(self.T - k, 0):, k] = np.inf  # t + k beyond the last step
         self.trans = trans  # trans[:, 0] = -log p(t | t): the cost rate of roadmap edges
+        # dwell[t]: further sampling intervals charged when step t is left by a time edge, each at
+        # -log p(t|t) (stay_cost[t] in all) plus the step cost of the configuration it is left from
+        self.dwell = np.zeros(self.T)
+        if settings.dwell == "expected":
+            p = np.minimum(np.exp(-trans[:, 0]), MAX_STAY)  # 0 where staying is not permitted
+            self.dwell = p / (1.0 - p)
+            self.dwell[-1] = 0.0  # the last step is never left
+        self.stay_cost = np.where(self.dwell > 0, self.dwell * np.where(np.isfinite(trans[:, 0]), trans[:, 0], 0.0), 0.0)
         self.time_offsets = tuple(k for k in offsets if k > 0)
         self._step_nll: Callable | None = None
         self._temp: dict[int, np.ndarray] = {}
@@ -326,7 +356,8 @@ class SpatiotemporalCosts:
                      self._subintervals(xt)) if xs else None
             src, dst, tau, m = self._relaxed_edges()
             self._G = relaxed_cost_to_go(ell, self.trans, self.time_offsets, self.dt, src, dst,
-                                         tau, m, self.settings.heuristic_sweeps, extra, t_start)
+                                         tau, m, self.settings.heuristic_sweeps, extra, t_start,
+                                         dwell=(self.dwell, self.stay_cost))
             self._Gell, self._Gkey, self._Gtmin = ell, key, t_start
         self._Gsrc = {}
         for i in self._temp:
@@ -336,7 +367,8 @@ class SpatiotemporalCosts:
                 tau = self._tau(i, out)
                 self._Gsrc[i] = source_bound(self.ell(self._raw(i)), self._G, self._Gell, rows,
                                              tau, self._subintervals(tau), self.trans,
-                                             self.time_offsets, self.dt)
+                                             self.time_offsets, self.dt,
+                                             dwell=(self.dwell, self.stay_cost))
 
     def heuristic_fn(self) -> Callable | None:
         """``h(node, target) -> float`` for networkx (None when disabled): ``heuristic`` over
@@ -367,7 +399,13 @@ class SpatiotemporalCosts:
         c = self.trans[t, k]
         if not np.isfinite(c):
             return math.inf
-        return float(c + self.ell(self._raw(v))[t + k])
+        ell = self.ell(self._raw(v))
+        if self.dwell[t] > 0:
+            c = c + self.dwell[t] * ell[t] + self.stay_cost[t]
+        for j in range(t + 1, t + k):  # a skipped step, with "expected": held at v like any other
+            if self.dwell[j] > 0:
+                c = c + (1.0 + self.dwell[j]) * ell[j] + self.stay_cost[j]
+        return float(c + ell[t + k])
 
     def spatial(self, v: int) -> tuple[list[int], np.ndarray]:
         """Collision-free neighbours of ``v`` and their edge costs ``(deg, T)`` at every step.

@@ -9,7 +9,9 @@ cost-to-go ``H(v, t)`` is a lower bound of the true one. We compute lower bounds
 backwards over t, vectorized over all vertices:
 
 * ``G(v, T-1) = 0``;
-* ``term(v, t) = min_k [-log p(t+k|t) + ell(v, t+k) + G(v, t+k)]`` (advance time at v first);
+* ``term(v, t) = min_k [-log p(t+k|t) + ell(v, t+k) + G(v, t+k)] + D_t (ell(v, t) + s_t)``
+  (advance time at v first; ``D_t`` and ``s_t`` the charge for the stay in step t, zero
+  unless ``lfd.stcost`` charges the expected dwell);
 * ``G_0(v, t) = h(t)`` (the vertex-independent bound below), then ``sweeps`` times
   ``G_j(v, t) = min(term(v, t), min_u [w_vu(t) + G_{j-1}(u, t)])`` (move first).
 
@@ -28,22 +30,35 @@ import numpy as np
 __all__ = ["time_only_bound", "relaxed_cost_to_go", "source_bound"]
 
 
-def time_only_bound(trans: np.ndarray, min_ell: np.ndarray, offsets) -> np.ndarray:
+def _leave(dwell, T: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(D (T,), stay (T,))``: the dwell charge of leaving each step (zeros when None)."""
+    if dwell is None:
+        return np.zeros(T), np.zeros(T)
+    D, stay = (np.asarray(a, dtype=float) for a in dwell)
+    return D, stay
+
+
+def time_only_bound(trans: np.ndarray, min_ell: np.ndarray, offsets, dwell=None) -> np.ndarray:
     """``h: (T,)``: trans (T, K') with trans[t, k] = -log p(t+k|t) (inf = forbidden), min_ell (T,)
-    the cheapest vertex cost per step, offsets the time offsets k > 0."""
+    the cheapest vertex cost per step, offsets the time offsets k > 0, dwell ``(D, s)`` the
+    charge ``D_t ell + s_t`` of leaving step t (None: none)."""
     T = len(min_ell)
+    D, stay = _leave(dwell, T)
     h = np.full(T, np.inf)
     h[-1] = 0.0
     for t in range(T - 2, -1, -1):
         for k in offsets:
             if t + k < T:
-                h[t] = min(h[t], trans[t, k] + min_ell[t + k] + h[t + k])
+                skipped = sum((1.0 + D[j]) * min_ell[j] + stay[j] for j in range(t + 1, t + k) if D[j] > 0)
+                h[t] = min(h[t], trans[t, k] + min_ell[t + k] + h[t + k] + skipped)
+        if D[t] > 0:
+            h[t] += D[t] * min_ell[t] + stay[t]
     return h
 
 
 def relaxed_cost_to_go(ell: np.ndarray, trans: np.ndarray, offsets, dt: float, src: np.ndarray,
                        dst: np.ndarray, tau: np.ndarray, m: np.ndarray, sweeps: int,
-                       extra=None, t_min: int = 0) -> np.ndarray:
+                       extra=None, t_min: int = 0, dwell=None) -> np.ndarray:
     """``G: (N, T)`` consistent lower bounds of the cost-to-go of every vertex and step.
 
     Parameters
@@ -58,9 +73,12 @@ def relaxed_cost_to_go(ell: np.ndarray, trans: np.ndarray, offsets, dt: float, s
         goal).
     t_min : steps before it (that a search starting at t_min never reaches) get ``G = h``,
         which keeps G consistent everywhere.
+    dwell : ``(D (T,), s (T,))``, the charge ``D_t ell(v, t) + s_t`` of a time edge leaving step
+        t at v (``lfd.stcost``'s expected dwell); None = none.
     """
     N, T = ell.shape
-    h = time_only_bound(trans, ell.min(axis=0), offsets)
+    D, stay_c = _leave(dwell, T)
+    h = time_only_bound(trans, ell.min(axis=0), offsets, dwell)
     ellT = np.ascontiguousarray(ell.T)  # (T, N): contiguous rows per step
     GT = np.zeros((T, N))
     GT[:t_min] = h[:t_min, None]
@@ -73,7 +91,13 @@ def relaxed_cost_to_go(ell: np.ndarray, trans: np.ndarray, offsets, dt: float, s
         term = np.full(N, np.inf)
         for k in offsets:
             if t + k < T and np.isfinite(trans[t, k]):
-                term = np.minimum(term, trans[t, k] + ellT[t + k] + GT[t + k])
+                c = trans[t, k] + ellT[t + k] + GT[t + k]
+                for j in range(t + 1, t + k):  # skipped steps (expected dwell only)
+                    if D[j] > 0:
+                        c = c + ((1.0 + D[j]) * ellT[j] + stay_c[j])
+                term = np.minimum(term, c)
+        if D[t] > 0:
+            term = term + (D[t] * ellT[t] + stay_c[t])
         g = np.minimum(term, h[t])
         stay = trans[t, 0]
         if sweeps and np.isfinite(stay) and (len(src) or extra is not None):
@@ -97,19 +121,23 @@ def relaxed_cost_to_go(ell: np.ndarray, trans: np.ndarray, offsets, dt: float, s
 
 def source_bound(ell_s: np.ndarray, G: np.ndarray, ell: np.ndarray, nbrs: np.ndarray,
                  tau: np.ndarray, m: np.ndarray, trans: np.ndarray, offsets,
-                 dt: float) -> np.ndarray:
+                 dt: float, dwell=None) -> np.ndarray:
     """``(T,)`` consistent bound for a vertex with out-edges only (the robot's configuration).
 
     ell_s : (T,) its shifted step cost; G, ell : (N, T) from/as given to ``relaxed_cost_to_go``;
     nbrs : (E,) rows of G it has edges to, with traversal times tau and sub-intervals m (E,). One
     move-first relaxation on top of the final G, so ``G_s <= w + G[u]`` for its edges and
-    ``G_s(t) <= c + G_s(t + k)`` in time.
+    ``G_s(t) <= c + G_s(t + k)`` in time. dwell: as for ``relaxed_cost_to_go``.
     """
     T = len(ell_s)
+    D, stay = _leave(dwell, T)
     g = np.zeros(T)
     for t in range(T - 2, -1, -1):
-        term = min((trans[t, k] + ell_s[t + k] + g[t + k] for k in offsets if t + k < T),
-                   default=np.inf)
+        term = min((trans[t, k] + ell_s[t + k] + g[t + k]
+                    + sum((1.0 + D[j]) * ell_s[j] + stay[j] for j in range(t + 1, t + k) if D[j] > 0)
+                    for k in offsets if t + k < T), default=np.inf)
+        if D[t] > 0:
+            term += D[t] * ell_s[t] + stay[t]
         w = (tau / dt) * (trans[t, 0] + (ell_s[t] + ell[nbrs, t]) / (2 * m))
         move = np.min(w + G[nbrs, t]) if len(nbrs) else np.inf
         g[t] = min(term, move)

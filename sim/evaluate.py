@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lfd.stcost import DWELLS
 from sim.scenarios import Scenario, draw_scenarios
 
 __all__ = ["Variant", "VARIANTS", "EvalSettings", "run_one", "evaluate", "format_table"]
@@ -55,7 +56,8 @@ VARIANTS = (
 class EvalSettings:
     """roadmap_size: PRM* vertices per scenario (None: ``lfd.task_planner.default_vertices`` of
     each model's time steps); seed: base seed of the scenario set;
-    n_scenarios; workers: processes; video: write a GIF of the first scenario per variant."""
+    n_scenarios; workers: processes; video: write a GIF of the first scenario per variant;
+    dwell: what a plan's time edges charge (``lfd.stcost.CostSettings.dwell``)."""
 
     task: str = "powder"
     n_scenarios: int = 10
@@ -64,6 +66,20 @@ class EvalSettings:
     workers: int = 2
     video: bool = False
     variants: tuple = tuple(v.name for v in VARIANTS)
+    dwell: str = "interval"
+
+    def __post_init__(self):
+        if self.dwell not in DWELLS:
+            raise ValueError(f"dwell must be one of {DWELLS}, got {self.dwell!r}")
+
+
+def planner_settings(roadmap_size: int | None, seed: int, dwell: str = "interval"):
+    """The ``TaskPlannerSettings`` of an evaluation run (and of ``plan.py``'s single plans)."""
+    from lfd.planner import PlannerSettings
+    from lfd.stcost import CostSettings
+    from lfd.task_planner import TaskPlannerSettings
+    return TaskPlannerSettings(n_vertices=roadmap_size, seed=seed,
+                               planner=PlannerSettings(cost=CostSettings(dwell=dwell)))
 
 
 def model_dir_for(models: Path, v: Variant) -> Path:
@@ -85,13 +101,13 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, seed: 
 
 
 def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roadmap_size: int | None,
-            video_path: str | None = None, with_path: bool = False) -> dict:
+            video_path: str | None = None, with_path: bool = False, dwell: str = "interval") -> dict:
     """One scenario with one variant, in this process. Returns a JSON-ready dict."""
     import torch
 
     from lfd.kinematics import KinematicModel
     from lfd.model import TaskModel
-    from lfd.task_planner import TaskPlanner, TaskPlannerSettings
+    from lfd.task_planner import TaskPlanner
     from sim.collision import make_collision_fns
     from sim.execute import ExecSettings, execute_plan
     from sim.world import World
@@ -104,7 +120,7 @@ def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roa
         fns = make_collision_fns(world, obstacles=variant.obstacles)
         planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn,
                               batch_collision_fn=fns.batch_collision_fn,
-                              settings=TaskPlannerSettings(n_vertices=roadmap_size, seed=scenario.seed))
+                              settings=planner_settings(roadmap_size, scenario.seed, dwell))
         frames = [] if video_path else None
         res = execute_plan(world, planner, scenario,
                            ExecSettings(frame_every=48 if video_path else 0), frames=frames)
@@ -113,7 +129,7 @@ def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roa
             imageio.mimsave(video_path, frames[::2], duration=0.2, loop=0)
     out = res.to_dict(with_path=with_path)
     out.update(scenario=scenario.seed, variant=variant.name, wall_s=time.perf_counter() - tic,
-               roadmap_size=planner.n_vertices,
+               roadmap_size=planner.n_vertices, dwell=dwell,
                roadmap_vertices=planner.roadmap.n if planner.roadmap is not None else 0)
     return out
 
@@ -175,7 +191,8 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
         for line in text.splitlines():
             try:
                 r = json.loads(line)
-                done[(r["variant"], r["scenario"])] = r
+                if r.get("dwell", "interval") == settings.dwell:  # runs of another setting: redone
+                    done[(r["variant"], r["scenario"])] = r
             except (ValueError, KeyError):
                 continue  # a line cut by an interruption
     jobs = []
@@ -185,7 +202,8 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
                 continue
             video = str(out_dir / f"{settings.task}_{v.name}_scenario{sc.seed}.gif") \
                 if settings.video and i == 0 else None
-            jobs.append((settings.task, sc, v, str(model_dir_for(models, v)), settings.roadmap_size, video))
+            jobs.append((settings.task, sc, v, str(model_dir_for(models, v)), settings.roadmap_size, video,
+                         False, settings.dwell))
     total = len(variants) * len(scenarios)
     bar = progress(total=total, initial=total - len(jobs)) if progress else None
     with log.open("a") as fh:
@@ -215,7 +233,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     results = {v.name: summarize([r for (n, s), r in done.items() if n == v.name and s in seeds], v,
                                  learn_s[v.name]) for v in variants}
     payload = {"task": settings.task, "base_seed": settings.seed, "n_scenarios": settings.n_scenarios,
-               "roadmap_size": settings.roadmap_size, "variants": results,
+               "roadmap_size": settings.roadmap_size, "dwell": settings.dwell, "variants": results,
                "scenario_set": [sc.to_dict() for sc in scenarios]}
     tmp = out_dir / "results.json.tmp"
     tmp.write_text(json.dumps(payload, indent=2) + "\n")
@@ -224,14 +242,14 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
 
 
 def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int | None, gui: bool = False,
-                  execute: bool = False, progress=None) -> tuple[dict, object, object]:
+                  execute: bool = False, progress=None, dwell: str = "interval") -> tuple[dict, object, object]:
     """Build the roadmap in the scenario's world, plan once from home (and optionally execute).
 
     Returns ``(report, plan_result, model)``.
     """
     from lfd.kinematics import KinematicModel
     from lfd.model import TaskModel
-    from lfd.task_planner import TaskPlanner, TaskPlannerSettings
+    from lfd.task_planner import TaskPlanner
     from sim import layout as L
     from sim.collision import make_collision_fns
     from sim.execute import execute_plan
@@ -245,7 +263,7 @@ def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int | None,
         tic = time.perf_counter()
         planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn,
                               batch_collision_fn=fns.batch_collision_fn,
-                              settings=TaskPlannerSettings(n_vertices=roadmap_size, seed=scenario.seed))
+                              settings=planner_settings(roadmap_size, scenario.seed, dwell))
         names, poses = world.sensed_landmarks()
         planner.update_landmarks(names, poses)
         report["roadmap_build_s"] = time.perf_counter() - tic

@@ -9,6 +9,7 @@ variant: ``ensure_model`` only checks that they exist.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -52,12 +53,13 @@ class FakeRunOne:
         self.calls: list[tuple[str, int]] = []
         self.interrupt_at = interrupt_at
 
-    def __call__(self, task, scenario, variant, model_dir, roadmap_size, video_path=None, with_path=False):
+    def __call__(self, task, scenario, variant, model_dir, roadmap_size, video_path=None, with_path=False,
+                 dwell="interval"):
         assert task == TASK and Path(model_dir).name == variant.model_key
         if self.interrupt_at is not None and len(self.calls) + 1 == self.interrupt_at:
             raise KeyboardInterrupt
         self.calls.append((variant.name, scenario.seed))
-        return _row(variant.name, scenario.seed)
+        return {**_row(variant.name, scenario.seed), "dwell": dwell}
 
 
 def _all_pairs() -> list[tuple[str, int]]:
@@ -153,3 +155,17 @@ def test_run_after_a_truncated_line_is_not_lost(tmp_path, models, monkeypatch):
     monkeypatch.setattr(ev, "run_one", again)
     ev.evaluate(_settings(), out, models)
     assert again.calls == []
+
+
+def test_runs_of_another_dwell_setting_are_run_again(tmp_path, models, monkeypatch):
+    """A log made with one ``dwell`` is not counted for another (rows without the key: "interval")."""
+    out = tmp_path / "eval"
+    monkeypatch.setattr(ev, "run_one", FakeRunOne())
+    ev.evaluate(_settings(), out, models)
+    again = FakeRunOne()
+    monkeypatch.setattr(ev, "run_one", again)
+    payload = ev.evaluate(replace(_settings(), dwell="expected"), out, models)
+    assert again.calls == _all_pairs()
+    assert payload["dwell"] == "expected"
+    with pytest.raises(ValueError, match="dwell must be one of"):
+        replace(_settings(), dwell="forever")

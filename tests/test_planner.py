@@ -52,9 +52,15 @@ def toy():
 
 # ---------------------------------------------------------------- independent reference
 def reference_graph(rm, step_nll, log_trans, dt, vmax, q_start, quad_dt=None, floor=None,
-                    q_goal=None, seg=segment_hits_box):
-    """The fully evaluated, eagerly collision-checked product graph, nodes ((v | "s" | "g"), t)."""
+                    q_goal=None, seg=segment_hits_box, dwell="interval"):
+    """The fully evaluated, eagerly collision-checked product graph, nodes ((v | "s" | "g"), t).
+
+    dwell="expected": a time edge leaving step t also pays p/(1-p) more intervals there
+    (p = p(t|t)), each at -log p(t|t) plus the step cost of where it leaves from, and a step it
+    skips 1 + p/(1-p) intervals at that configuration."""
     T = log_trans.shape[0]
+    p_stay = np.minimum(np.exp(log_trans[:, 0]), 0.999)
+    D = p_stay / (1 - p_stay) if dwell == "expected" else np.zeros(T)
     quad_dt = quad_dt or dt
     V = np.array(rm.vertices)
     n = len(V)
@@ -95,7 +101,9 @@ def reference_graph(rm, step_nll, log_trans, dt, vmax, q_start, quad_dt=None, fl
         for t in range(T):
             for k_ in (1, 2):
                 if t + k_ < T:
-                    G.add_edge((v, t), (v, t + k_), weight=-log_trans[t, k_] + lq[t + k_])
+                    stay = sum(((j > t) + D[j]) * lq[j] - D[j] * log_trans[j, 0]
+                               for j in range(t, t + k_) if D[j] > 0)
+                    G.add_edge((v, t), (v, t + k_), weight=-log_trans[t, k_] + lq[t + k_] + stay)
         G.add_edge((v, T - 1), "sink", weight=0.0)
     return G
 
@@ -130,15 +138,16 @@ def assert_path_valid(res, rm):
 
 
 # ---------------------------------------------------------------- tests
+@pytest.mark.parametrize("dwell", ["interval", "expected"])
 @pytest.mark.parametrize("edge_checks", ["path", "expand"])
 @pytest.mark.parametrize("heuristic", [True, False])
-def test_lazy_search_matches_dijkstra_on_the_full_product_graph(toy, heuristic, edge_checks):
+def test_lazy_search_matches_dijkstra_on_the_full_product_graph(toy, heuristic, edge_checks, dwell):
     means = arc_means(T2)
     q0, t0 = np.array([-0.7, 0.05]), 0
-    planner = make_planner(toy, means, heuristic=heuristic, edge_checks=edge_checks)
+    planner = make_planner(toy, means, heuristic=heuristic, edge_checks=edge_checks, dwell=dwell)
     res = planner.plan(q0, t0)
     assert_path_valid(res, toy)
-    ref = reference_cost(toy, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2, q0, t0)
+    ref = reference_cost(toy, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2, q0, t0, dwell=dwell)
     assert res.cost == pytest.approx(ref, rel=1e-9, abs=1e-9)
     n_roadmap_edges = toy.graph.number_of_edges()
     assert 0 < res.n_edges_evaluated <= n_roadmap_edges + 20
@@ -196,15 +205,16 @@ def test_per_step_floor_matches_dijkstra(toy, edge_checks):
         make_planner(toy, means, nll_floor=(0.0, 1.0))
 
 
+@pytest.mark.parametrize("dwell", ["interval", "expected"])
 @pytest.mark.parametrize("t_start", [0, 3])
-def test_heuristic_is_admissible_and_consistent(toy, t_start):
+def test_heuristic_is_admissible_and_consistent(toy, t_start, dwell):
     means = arc_means(T2)
-    costs = SpatiotemporalCosts(toy, log_trans_table(T2), DT, VMAX2)
+    costs = SpatiotemporalCosts(toy, log_trans_table(T2), DT, VMAX2, settings=CostSettings(dwell=dwell))
     costs.set_step_nll(gaussian_factory()(means))
     q0 = np.array([-0.7, 0.05])
     costs.set_temporary({-1: q0}, {-1: toy.connect_point(q0)})
     costs.prepare(t_start)
-    G = reference_graph(toy, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2, q0)
+    G = reference_graph(toy, gaussian_factory()(means), log_trans_table(T2), DT, VMAX2, q0, dwell=dwell)
     to_go = nx.single_source_dijkstra_path_length(G.reverse(copy=False), "sink")
 
     def h(node):
@@ -394,6 +404,34 @@ def test_path_checking_finds_the_same_plan_with_fewer_segment_checks():
         counts[checks], costs[checks] = res.stats["segment_checks"], res.cost
     assert costs["path"] == pytest.approx(costs["expand"], rel=1e-9)
     assert counts["path"] < 0.5 * counts["expand"]
+
+
+def test_expected_dwell_weighs_steps_by_their_stay(toy):
+    """With a sticky step (p(t|t) = 0.9: 9 more intervals expected) the expected dwell moves the
+    plan to a better configuration for that step, where one interval per step holds on."""
+    means = arc_means(T2)
+    lt = log_trans_table(T2)
+    lt[4] = np.log([0.9, 0.08, 0.02])
+    q0 = np.array([-0.7, 0.05])
+    err = {}
+    for dwell in ("interval", "expected"):
+        p = ClosedLoopPlanner(toy, gaussian_factory(), lt, DT, VMAX2,
+                              settings=PlannerSettings(cost=CostSettings(dwell=dwell)))
+        p.update_landmarks(means)
+        res = p.plan(q0, 0)
+        assert_path_valid(res, toy)
+        # where the robot stays through step 4: the last configuration at step 4 or before (a
+        # skip 3 -> 5 holds it through step 4)
+        q4 = res.configurations[np.flatnonzero(res.time_steps <= 4)[-1]]
+        err[dwell] = float(np.linalg.norm(q4 - means[4]))
+        assert res.cost == pytest.approx(reference_cost(toy, gaussian_factory()(means), lt, DT, VMAX2, q0, 0,
+                                                        dwell=dwell), rel=1e-9)
+    assert err["expected"] < 0.5 * err["interval"], err
+
+
+def test_bad_dwell_option():
+    with pytest.raises(ValueError, match="dwell in"):
+        CostSettings(dwell="forever")
 
 
 def test_bad_edge_checks_option():
