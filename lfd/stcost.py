@@ -47,8 +47,13 @@ pouring step, the cheapest to reach, where the steps asked for 100-106 degrees. 
 ``dwell="expected"`` a time edge leaving step t at ``q`` also charges the step's expected
 further stay, ``D_t = p/(1-p)`` intervals (``p = p(t|t)``), each at ``-log p(t|t) + ell(q, t)``:
 the expected negative log-likelihood of the executed stay, so the cost weighs each step by the
-time the robot will spend in it. (Motion inside a step is charged on top of the stay, not
-instead of part of it: a slight over-charge for moving, which keeps costs per edge.)
+time the robot will spend in it. A step that a time edge skips (t -> t + 2) is charged as if
+held at the same configuration (its ``1 + D`` intervals): without that, skipping would be the
+cheap way past a step the demonstrations stayed in long (``-log p`` of a skip is a few units,
+a stay tens of intervals), whatever the configuration. Motion inside a step is charged on top
+of the stay, not instead of part of it: a slight over-charge for moving, which keeps costs per
+edge. Measured on the four pour scenes of base seed 0 that poured 62-78% with one interval per
+step: 82-100% in the bowl with the expected dwell; plans take about twice as long.
 
 A* heuristic: ``lfd.stheuristic``, the cost-to-go of a relaxed problem (roadmap edges charged
 only their self-transition part), a consistent lower bound computed for all vertices at once.
