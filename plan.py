@@ -1,6 +1,7 @@
 """Plan a learned task in a new scene, or evaluate every model variant on seeded scenarios.
 
-    python plan.py --model runs/powder [--scenario-seed S] [--roadmap-size N] [--dwell D] [--gui] [--out DIR] [--plot]
+    python plan.py --model runs/powder [--scenario-seed S] [--roadmap-size N] [--dwell D] [--gui]
+                   [--out DIR] [--plot]
     python plan.py --evaluate --task powder|pour [--scenarios N] [--seed S] [--workers K] [--dwell D] [--out DIR] [--video]
 """
 
