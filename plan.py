@@ -2,7 +2,8 @@
 
     python plan.py --model runs/powder [--scenario-seed S] [--roadmap-size N] [--dwell D] [--gui]
                    [--out DIR] [--plot]
-    python plan.py --evaluate --task powder|pour [--scenarios N] [--seed S] [--workers K] [--dwell D] [--out DIR] [--video]
+    python plan.py --evaluate --task powder|pour [--scenarios N] [--seed S] [--workers K] [--dwell D]
+                   [--out DIR] [--video]
 """
 
 from __future__ import annotations

@@ -105,7 +105,10 @@ class CostSettings:
     dwell: what a time edge charges for the step it leaves, see *Dwell* in the module docstring:
     "interval" (the paper's: one sampling interval, charged at the step it enters) or "expected"
     (also the step's expected further stay ``p/(1-p)`` intervals, ``p = p(t|t)``, at the
-    configuration it is left from)."""
+    configuration it is left from);
+    trans_scale: ``log_trans`` is this multiple of the log transition probabilities
+    (``lfd.task_planner`` passes ``2 log p``, Eq. 3 units, and sets 2): the expected dwell reads
+    ``p = exp(log_trans / trans_scale)``."""
     quad_dt: float | None = None
     nll_floor: float | tuple[float, ...] | None = None
     heuristic: bool = True
@@ -114,6 +117,7 @@ class CostSettings:
     dtype: torch.dtype = torch.float64
     edge_checks: str = "path"
     dwell: str = "interval"
+    trans_scale: float = 1.0
 
     def __post_init__(self):
         if self.quad_dt is not None and not self.quad_dt > 0:
@@ -126,6 +130,8 @@ class CostSettings:
             raise ValueError(f"Expected edge_checks in {EDGE_CHECKS}, got {self.edge_checks!r}")
         if self.dwell not in DWELLS:
             raise ValueError(f"Expected dwell in {DWELLS}, got {self.dwell!r}")
+        if not self.trans_scale > 0:
+            raise ValueError(f"Expected trans_scale > 0, got {self.trans_scale}")
 
 
 class SpatiotemporalCosts:
@@ -179,11 +185,13 @@ class SpatiotemporalCosts:
         # -log p(t|t) (stay_cost[t] in all) plus the step cost of the configuration it is left from
         self.dwell = np.zeros(self.T)
         if settings.dwell == "expected":
-            p = np.minimum(np.exp(-trans[:, 0]), MAX_STAY)  # 0 where staying is not permitted
+            p = np.minimum(np.exp(-trans[:, 0] / settings.trans_scale), MAX_STAY)  # 0: no staying
             self.dwell = p / (1.0 - p)
             self.dwell[-1] = 0.0  # the last step is never left
         stay = np.where(np.isfinite(trans[:, 0]), trans[:, 0], 0.0)
         self.stay_cost = np.where(self.dwell > 0, self.dwell * stay, 0.0)  # (T,)
+        # what the heuristic needs to charge the same (None: one interval per time edge)
+        self._dwell_terms = (self.dwell, self.stay_cost) if settings.dwell == "expected" else None
         self.time_offsets = tuple(k for k in offsets if k > 0)
         self._step_nll: Callable | None = None
         self._temp: dict[int, np.ndarray] = {}
@@ -365,7 +373,7 @@ class SpatiotemporalCosts:
             src, dst, tau, m = self._relaxed_edges()
             self._G = relaxed_cost_to_go(ell, self.trans, self.time_offsets, self.dt, src, dst,
                                          tau, m, self.settings.heuristic_sweeps, extra, t_start,
-                                         dwell=(self.dwell, self.stay_cost))
+                                         dwell=self._dwell_terms)
             self._Gell, self._Gkey, self._Gtmin = ell, key, t_start
         self._Gsrc = {}
         for i in self._temp:
@@ -376,7 +384,7 @@ class SpatiotemporalCosts:
                 self._Gsrc[i] = source_bound(self.ell(self._raw(i)), self._G, self._Gell, rows,
                                              tau, self._subintervals(tau), self.trans,
                                              self.time_offsets, self.dt,
-                                             dwell=(self.dwell, self.stay_cost))
+                                             dwell=self._dwell_terms)
 
     def heuristic_fn(self) -> Callable | None:
         """``h(node, target) -> float`` for networkx (None when disabled): ``heuristic`` over
@@ -408,10 +416,10 @@ class SpatiotemporalCosts:
         if not np.isfinite(c):
             return math.inf
         ell = self.ell(self._raw(v))
-        if self.dwell[t] > 0:
-            c = c + self.dwell[t] * ell[t] + self.stay_cost[t]
-        for j in range(t + 1, t + k):  # a skipped step, with "expected": held at v like any other
-            if self.dwell[j] > 0:
+        if self._dwell_terms is not None:
+            if self.dwell[t] > 0:  # (no 0 * inf)
+                c = c + self.dwell[t] * ell[t] + self.stay_cost[t]
+            for j in range(t + 1, t + k):  # a skipped step: held at v like any other
                 c = c + (1.0 + self.dwell[j]) * ell[j] + self.stay_cost[j]
         return float(c + ell[t + k])
 

@@ -9,9 +9,10 @@ cost-to-go ``H(v, t)`` is a lower bound of the true one. We compute lower bounds
 backwards over t, vectorized over all vertices:
 
 * ``G(v, T-1) = 0``;
-* ``term(v, t) = min_k [-log p(t+k|t) + ell(v, t+k) + G(v, t+k)] + D_t (ell(v, t) + s_t)``
-  (advance time at v first; ``D_t`` and ``s_t`` the charge for the stay in step t, zero
-  unless ``lfd.stcost`` charges the expected dwell);
+* ``term(v, t) = min_k [-log p(t+k|t) + ell(v, t+k) + skip_k(v, t) + G(v, t+k)] + D_t ell(v, t) + s_t``
+  (advance time at v first). Only with ``lfd.stcost``'s expected dwell: ``D_t ell(v, t) + s_t``
+  is the stay in step t, ``skip_k(v, t) = sum_j [(1 + D_j) ell(v, j) + s_j]`` over the steps
+  ``t < j < t + k`` a time edge skips; without it both are zero;
 * ``G_0(v, t) = h(t)`` (the vertex-independent bound below), then ``sweeps`` times
   ``G_j(v, t) = min(term(v, t), min_u [w_vu(t) + G_{j-1}(u, t)])`` (move first).
 
@@ -30,12 +31,12 @@ import numpy as np
 __all__ = ["time_only_bound", "relaxed_cost_to_go", "source_bound"]
 
 
-def _leave(dwell, T: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(D (T,), stay (T,))``: the dwell charge of leaving each step (zeros when None)."""
+def _leave(dwell, T: int) -> tuple[np.ndarray, np.ndarray, bool]:
+    """``(D (T,), s (T,), on)``: the dwell terms (zeros and False when ``dwell`` is None)."""
     if dwell is None:
-        return np.zeros(T), np.zeros(T)
+        return np.zeros(T), np.zeros(T), False
     D, stay = (np.asarray(a, dtype=float) for a in dwell)
-    return D, stay
+    return D, stay, True
 
 
 def time_only_bound(trans: np.ndarray, min_ell: np.ndarray, offsets, dwell=None) -> np.ndarray:
@@ -43,13 +44,13 @@ def time_only_bound(trans: np.ndarray, min_ell: np.ndarray, offsets, dwell=None)
     the cheapest vertex cost per step, offsets the time offsets k > 0, dwell ``(D, s)`` the
     charge ``D_t ell + s_t`` of leaving step t (None: none)."""
     T = len(min_ell)
-    D, stay = _leave(dwell, T)
+    D, stay, on = _leave(dwell, T)
     h = np.full(T, np.inf)
     h[-1] = 0.0
     for t in range(T - 2, -1, -1):
         for k in offsets:
             if t + k < T:
-                skipped = sum((1.0 + D[j]) * min_ell[j] + stay[j] for j in range(t + 1, t + k) if D[j] > 0)
+                skipped = sum((1.0 + D[j]) * min_ell[j] + stay[j] for j in range(t + 1, t + k)) if on else 0.0
                 h[t] = min(h[t], trans[t, k] + min_ell[t + k] + h[t + k] + skipped)
         if D[t] > 0:
             h[t] += D[t] * min_ell[t] + stay[t]
@@ -77,7 +78,7 @@ def relaxed_cost_to_go(ell: np.ndarray, trans: np.ndarray, offsets, dt: float, s
         t at v (``lfd.stcost``'s expected dwell); None = none.
     """
     N, T = ell.shape
-    D, stay_c = _leave(dwell, T)
+    D, stay_c, on = _leave(dwell, T)
     h = time_only_bound(trans, ell.min(axis=0), offsets, dwell)
     ellT = np.ascontiguousarray(ell.T)  # (T, N): contiguous rows per step
     GT = np.zeros((T, N))
@@ -92,9 +93,8 @@ def relaxed_cost_to_go(ell: np.ndarray, trans: np.ndarray, offsets, dt: float, s
         for k in offsets:
             if t + k < T and np.isfinite(trans[t, k]):
                 c = trans[t, k] + ellT[t + k] + GT[t + k]
-                for j in range(t + 1, t + k):  # skipped steps (expected dwell only)
-                    if D[j] > 0:
-                        c = c + ((1.0 + D[j]) * ellT[j] + stay_c[j])
+                for j in range(t + 1, t + k) if on else ():  # skipped steps (expected dwell)
+                    c = c + ((1.0 + D[j]) * ellT[j] + stay_c[j])
                 term = np.minimum(term, c)
         if D[t] > 0:
             term = term + (D[t] * ellT[t] + stay_c[t])
@@ -130,11 +130,11 @@ def source_bound(ell_s: np.ndarray, G: np.ndarray, ell: np.ndarray, nbrs: np.nda
     ``G_s(t) <= c + G_s(t + k)`` in time. dwell: as for ``relaxed_cost_to_go``.
     """
     T = len(ell_s)
-    D, stay = _leave(dwell, T)
+    D, stay, on = _leave(dwell, T)
     g = np.zeros(T)
     for t in range(T - 2, -1, -1):
         term = min((trans[t, k] + ell_s[t + k] + g[t + k]
-                    + sum((1.0 + D[j]) * ell_s[j] + stay[j] for j in range(t + 1, t + k) if D[j] > 0)
+                    + (sum((1.0 + D[j]) * ell_s[j] + stay[j] for j in range(t + 1, t + k)) if on else 0.0)
                     for k in offsets if t + k < T), default=np.inf)
         if D[t] > 0:
             term += D[t] * ell_s[t] + stay[t]

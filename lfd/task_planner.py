@@ -335,10 +335,11 @@ class TaskPlanner:
         self._remember(self._landmarks[:, :3, 3].cpu().numpy(), verdict)
         # step_nll is in Eq. 3 units (log|Sigma| + Mahalanobis^2 = 2 x nll + const), so the
         # transition term must be -2 log p(t'|t): hand the planner 2 log p as its "log_trans".
-        planner_settings = s.planner
+        cost = replace(s.planner.cost, trans_scale=2.0)  # the "log_trans" handed over is 2 log p
         if s.cost_floor == "per-step":  # step_nll >= s log|Sigma_t| (the Mahalanobis term is >= 0)
             floor = self.model.logdet_scale * logdet_tensor(self.model.sigma_inv).detach().cpu().numpy()
-            planner_settings = replace(s.planner, cost=replace(s.planner.cost, nll_floor=tuple(floor.tolist())))
+            cost = replace(cost, nll_floor=tuple(floor.tolist()))
+        planner_settings = replace(s.planner, cost=cost)
         self.planner = ClosedLoopPlanner(
             self.roadmap, self._step_nll_factory, 2.0 * self.model.log_trans.detach().cpu().numpy(),
             dt=float(self.model.task.dt) if self.model.task else 0.1,

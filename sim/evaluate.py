@@ -257,7 +257,7 @@ def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int | None,
 
     model = TaskModel.load(model_dir)
     model.kin = KinematicModel.from_spec(model.robot, dtype=model.dtype)
-    report = {"scenario": scenario.to_dict()}
+    report = {"scenario": scenario.to_dict(), "dwell": dwell}
     with World(scenario.task, gui=gui, scenario=scenario.placements) as world:
         fns = make_collision_fns(world, obstacles=True)
         tic = time.perf_counter()

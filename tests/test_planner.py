@@ -101,8 +101,10 @@ def reference_graph(rm, step_nll, log_trans, dt, vmax, q_start, quad_dt=None, fl
         for t in range(T):
             for k_ in (1, 2):
                 if t + k_ < T:
-                    stay = sum(((j > t) + D[j]) * lq[j] - D[j] * log_trans[j, 0]
-                               for j in range(t, t + k_) if D[j] > 0)
+                    stay = 0.0
+                    if dwell == "expected":  # leaving t (D_t intervals), skipping j (1 + D_j)
+                        stay = sum(((j > t) + D[j]) * lq[j] - (D[j] * log_trans[j, 0] if D[j] > 0 else 0.0)
+                                   for j in range(t, t + k_))
                     G.add_edge((v, t), (v, t + k_), weight=-log_trans[t, k_] + lq[t + k_] + stay)
         G.add_edge((v, T - 1), "sink", weight=0.0)
     return G
@@ -361,10 +363,11 @@ def test_roadmap_growth_between_plans(toy):
     assert before.ok and after.cost == pytest.approx(ref, rel=1e-9)  # the floor may move: no order
 
 
+@pytest.mark.parametrize("dwell", ["interval", "expected"])
 @pytest.mark.parametrize("seed", range(6))
-def test_random_problems_match_reference(seed):
-    """Random roadmaps, horizons, forbidden transitions, start steps and goals; both the plain
-    time bound (0 sweeps) and the relaxed heuristic give the reference Dijkstra cost."""
+def test_random_problems_match_reference(seed, dwell):
+    """Random roadmaps, horizons, forbidden transitions (stays too), start steps and goals; both
+    the plain time bound (0 sweeps) and the relaxed heuristic give the reference Dijkstra cost."""
     rng = np.random.default_rng(100 + seed)
     rm = Roadmap.build(lambda n: rng.uniform(-1, 1, (n, 2)), int(rng.integers(30, 90)), in_box,
                        segment_hits_box)
@@ -379,10 +382,10 @@ def test_random_problems_match_reference(seed):
     q0, t0 = free_point(), int(rng.integers(0, T))
     qg = free_point() if seed % 2 == 0 else None
     ref = reference_cost(rm, gaussian_factory()(means), lt, DT, VMAX2, q0, t0, q_goal=qg,
-                         quad_dt=0.05)
+                         quad_dt=0.05, dwell=dwell)
     for sweeps, checks in ((0, "path"), (3, "path"), (3, "expand")):
         p = ClosedLoopPlanner(rm, gaussian_factory(), lt, DT, VMAX2, settings=PlannerSettings(
-            cost=CostSettings(heuristic_sweeps=sweeps, quad_dt=0.05, edge_checks=checks)))
+            cost=CostSettings(heuristic_sweeps=sweeps, quad_dt=0.05, edge_checks=checks, dwell=dwell)))
         p.update_landmarks(means)
         res = p.plan(q0, t0, qg)
         if math.isinf(ref):
@@ -432,6 +435,20 @@ def test_expected_dwell_weighs_steps_by_their_stay(toy):
 def test_bad_dwell_option():
     with pytest.raises(ValueError, match="dwell in"):
         CostSettings(dwell="forever")
+    with pytest.raises(ValueError, match="trans_scale > 0"):
+        CostSettings(trans_scale=0.0)
+
+
+def test_expected_dwell_reads_p_through_the_scale(toy):
+    """TaskPlanner hands the costs 2 log p (Eq. 3 units) with trans_scale=2: the dwell must come
+    out as p/(1-p) of the real p, as with log p and scale 1."""
+    lt = log_trans_table(T2, p=(0.8, 0.15, 0.05))
+    one = SpatiotemporalCosts(toy, lt, DT, VMAX2, settings=CostSettings(dwell="expected"))
+    two = SpatiotemporalCosts(toy, 2 * lt, DT, VMAX2, settings=CostSettings(dwell="expected", trans_scale=2.0))
+    expected = np.r_[np.full(T2 - 1, 0.8 / 0.2), 0.0]
+    np.testing.assert_allclose(one.dwell, expected, rtol=1e-12)
+    np.testing.assert_allclose(two.dwell, expected, rtol=1e-12)
+    np.testing.assert_allclose(two.stay_cost, 2 * one.stay_cost, rtol=1e-12)  # in the units of log_trans
 
 
 def test_bad_edge_checks_option():
