@@ -77,7 +77,7 @@ import numpy as np
 import torch
 
 from lfd.roadmap import Roadmap
-from lfd.stheuristic import relaxed_cost_to_go, source_bound
+from lfd.stheuristic import dwell_charge, relaxed_cost_to_go, source_bound
 
 __all__ = ["CostSettings", "CostError", "SpatiotemporalCosts", "EDGE_CHECKS", "DWELLS"]
 
@@ -418,12 +418,7 @@ class SpatiotemporalCosts:
         if not np.isfinite(c):
             return math.inf
         ell = self.ell(self._raw(v))
-        if self._dwell_terms is not None:
-            if self.dwell[t] > 0:  # (no 0 * inf)
-                c = c + self.dwell[t] * ell[t] + self.stay_cost[t]
-            for j in range(t + 1, t + k):  # a skipped step: held at v like any other
-                c = c + (1.0 + self.dwell[j]) * ell[j] + self.stay_cost[j]
-        return float(c + ell[t + k])
+        return float(c + ell[t + k] + dwell_charge(ell.__getitem__, t, k, self._dwell_terms))
 
     def spatial(self, v: int) -> tuple[list[int], np.ndarray]:
         """Collision-free neighbours of ``v`` and their edge costs ``(deg, T)`` at every step.

@@ -28,15 +28,21 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["time_only_bound", "relaxed_cost_to_go", "source_bound"]
+__all__ = ["time_only_bound", "relaxed_cost_to_go", "source_bound", "dwell_charge"]
 
 
-def _leave(dwell, T: int) -> tuple[np.ndarray, np.ndarray, bool]:
-    """``(D (T,), s (T,), on)``: the dwell terms (zeros and False when ``dwell`` is None)."""
+def dwell_charge(ell_at, t: int, k: int, dwell):
+    """What a time edge ``t -> t + k`` adds for the stays it implies (``lfd.stcost``'s expected
+    dwell): ``D_t ell(t) + s_t`` for the step it leaves and ``(1 + D_j) ell(j) + s_j`` for each
+    step ``t < j < t + k`` it skips. ``ell_at(j)`` gives the step cost at step j (a number or an
+    array over vertices); ``dwell = (D (T,), s (T,))``, or None for no charge (0.0)."""
     if dwell is None:
-        return np.zeros(T), np.zeros(T), False
-    D, stay = (np.asarray(a, dtype=float) for a in dwell)
-    return D, stay, True
+        return 0.0
+    D, s = dwell
+    out = D[t] * ell_at(t) + s[t] if D[t] > 0 else 0.0  # (no 0 * inf)
+    for j in range(t + 1, t + k):
+        out = out + (1.0 + D[j]) * ell_at(j) + s[j]
+    return out
 
 
 def time_only_bound(trans: np.ndarray, min_ell: np.ndarray, offsets, dwell=None) -> np.ndarray:
@@ -44,16 +50,13 @@ def time_only_bound(trans: np.ndarray, min_ell: np.ndarray, offsets, dwell=None)
     the cheapest vertex cost per step, offsets the time offsets k > 0, dwell ``(D, s)`` the
     charge ``D_t ell + s_t`` of leaving step t (None: none)."""
     T = len(min_ell)
-    D, stay, on = _leave(dwell, T)
     h = np.full(T, np.inf)
     h[-1] = 0.0
     for t in range(T - 2, -1, -1):
         for k in offsets:
             if t + k < T:
-                skipped = sum((1.0 + D[j]) * min_ell[j] + stay[j] for j in range(t + 1, t + k)) if on else 0.0
-                h[t] = min(h[t], trans[t, k] + min_ell[t + k] + h[t + k] + skipped)
-        if D[t] > 0:
-            h[t] += D[t] * min_ell[t] + stay[t]
+                extra = dwell_charge(min_ell.__getitem__, t, k, dwell)
+                h[t] = min(h[t], trans[t, k] + min_ell[t + k] + h[t + k] + extra)
     return h
 
 
@@ -78,7 +81,6 @@ def relaxed_cost_to_go(ell: np.ndarray, trans: np.ndarray, offsets, dt: float, s
         t at v (``lfd.stcost``'s expected dwell); None = none.
     """
     N, T = ell.shape
-    D, stay_c, on = _leave(dwell, T)
     h = time_only_bound(trans, ell.min(axis=0), offsets, dwell)
     ellT = np.ascontiguousarray(ell.T)  # (T, N): contiguous rows per step
     GT = np.zeros((T, N))
@@ -92,12 +94,8 @@ def relaxed_cost_to_go(ell: np.ndarray, trans: np.ndarray, offsets, dt: float, s
         term = np.full(N, np.inf)
         for k in offsets:
             if t + k < T and np.isfinite(trans[t, k]):
-                c = trans[t, k] + ellT[t + k] + GT[t + k]
-                for j in range(t + 1, t + k) if on else ():  # skipped steps (expected dwell)
-                    c = c + ((1.0 + D[j]) * ellT[j] + stay_c[j])
+                c = trans[t, k] + ellT[t + k] + GT[t + k] + dwell_charge(ellT.__getitem__, t, k, dwell)
                 term = np.minimum(term, c)
-        if D[t] > 0:
-            term = term + (D[t] * ellT[t] + stay_c[t])
         g = np.minimum(term, h[t])
         stay = trans[t, 0]
         if sweeps and np.isfinite(stay) and (len(src) or extra is not None):
@@ -130,14 +128,10 @@ def source_bound(ell_s: np.ndarray, G: np.ndarray, ell: np.ndarray, nbrs: np.nda
     ``G_s(t) <= c + G_s(t + k)`` in time. dwell: as for ``relaxed_cost_to_go``.
     """
     T = len(ell_s)
-    D, stay, on = _leave(dwell, T)
     g = np.zeros(T)
     for t in range(T - 2, -1, -1):
-        term = min((trans[t, k] + ell_s[t + k] + g[t + k]
-                    + (sum((1.0 + D[j]) * ell_s[j] + stay[j] for j in range(t + 1, t + k)) if on else 0.0)
+        term = min((trans[t, k] + ell_s[t + k] + g[t + k] + dwell_charge(ell_s.__getitem__, t, k, dwell)
                     for k in offsets if t + k < T), default=np.inf)
-        if D[t] > 0:
-            term += D[t] * ell_s[t] + stay[t]
         w = (tau / dt) * (trans[t, 0] + (ell_s[t] + ell[nbrs, t]) / (2 * m))
         move = np.min(w + G[nbrs, t]) if len(nbrs) else np.inf
         g[t] = min(term, move)
