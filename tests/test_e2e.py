@@ -64,6 +64,9 @@ def test_pipeline_plans_and_replans(model_dir, free_run):
     r = run_one("powder", _scenario(BOWL, bowl_after=after), LEARNED, str(model_dir), ROADMAP)
     assert r["n_replans"] >= 1 and len(r["replan_ms"]) == r["n_replans"]
     assert all(s == "ok" for s in r["plan_statuses"]), r["plan_statuses"]
+    # the reaction time is timed too: the landmark update before every re-plan, and the build
+    assert len(r["replan_update_ms"]) == r["n_replans"] and all(u > 0 for u in r["replan_update_ms"])
+    assert r["build_ms"] > 0
 
 
 def test_plans_pass_the_collision_checker(model_dir):

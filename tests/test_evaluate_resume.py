@@ -169,3 +169,19 @@ def test_runs_of_another_dwell_setting_are_run_again(tmp_path, models, monkeypat
     assert payload["dwell"] == "expected"
     with pytest.raises(ValueError, match="dwell must be one of"):
         replace(_settings(), dwell="forever")
+
+
+def test_summary_reaction_times_only_from_timed_runs():
+    """``reaction_ms`` adds each re-plan's landmark update to its search; runs logged before the
+    update was timed count for the searches but not for the reaction or the build."""
+    v = next(x for x in ev.VARIANTS if x.name == "learned+learned")
+    old = _row(v.name, 0)  # replan_ms [1, 2], no update times
+    new = {**_row(v.name, 1), "replan_ms": [3.0, 4.0], "replan_update_ms": [10.0, 30.0], "build_ms": 7.0}
+    s = ev.summarize([old, new], v, 1.0)
+    assert s["replan_ms"]["median"] == pytest.approx(2.5)  # 1, 2, 3, 4
+    assert s["reaction_ms"]["median"] == pytest.approx(23.5)  # 13, 34
+    assert s["build_ms"]["median"] == pytest.approx(7.0)
+    only_old = ev.summarize([old], v, 1.0)
+    assert only_old["reaction_ms"]["median"] != only_old["reaction_ms"]["median"]  # NaN: none timed
+    table = ev.format_table({v.name: s, "old": only_old}, TASK)
+    assert "24ms" in table and table.splitlines()[-2].split()[-1] == "-"
