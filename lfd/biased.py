@@ -40,32 +40,32 @@ def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.
     eye = torch.eye(d, dtype=q.dtype, device=q.device)
 
     def residual(q):
-        T_world_ee = kin.fk(q)  # (C, 4, 4)
+        """Residual ``(C, F)`` and its Jacobian ``(C, F, d)`` at
+        ``q``, from one forward pass."""
+        J, T_world_ee = kin.jacobian(q, with_pose=True)  # (C, 6, d), (C, 4, 4)
         lever = T_world_ee[:, :3, :3] @ model.tool.detach()  # (C, 3) tool point offset, world
         x = (T_world_ee[:, :3, 3] + lever) @ A.T + b  # (C, 3) tool point in the virtual frame
         r = (torch.cat([q, x], dim=1) - f_target) @ W.T  # (C, F)
-        return r, lever
+        J_tool = J[:, :3] + torch.cross(J[:, 3:], lever[..., None].expand_as(J[:, 3:]), dim=1)
+        Jr = W @ torch.cat([eye.expand(len(q), d, d), A @ J_tool], dim=1)  # (C, F, d)
+        return r, Jr
 
     q = q.detach().clone()
     f_target = f_target.detach()
-    r, lever = residual(q)
+    r, Jr = residual(q)
     cost0 = cost = (r * r).sum(-1)  # (C,)
     lam = torch.full_like(cost, 1e-2)
     guard = None  # (C,) bool: starts collision-free, must stay so
     if batch_collision_fn is not None and iters > 0:
         guard = ~torch.as_tensor(np.asarray(batch_collision_fn(q.cpu().numpy()), dtype=bool), device=q.device)
     for _ in range(iters):
-        J = kin.jacobian(q)  # (C, 6, d)
-        J_tool = J[:, :3] + torch.cross(J[:, 3:], lever[..., None].expand_as(J[:, 3:]), dim=1)
-        Jf = torch.cat([eye.expand(len(q), d, d), A @ J_tool], dim=1)  # (C, F, d)
-        Jr = W @ Jf  # (C, F, d)
         H = Jr.transpose(1, 2) @ Jr
         g = (Jr.transpose(1, 2) @ r[..., None])[..., 0]  # (C, d)
         dq = -torch.linalg.solve(H + lam[:, None, None] * (eye + torch.diag_embed(
             torch.diagonal(H, dim1=1, dim2=2))), g)
         dq = dq * (max_step / dq.abs().amax(-1).clamp_min(max_step))[:, None]
         q_new = torch.maximum(torch.minimum(q + dq, kin.upper), kin.lower)
-        r_new, lever_new = residual(q_new)
+        r_new, Jr_new = residual(q_new)
         cost_new = (r_new * r_new).sum(-1)
         take = cost_new < cost
         if guard is not None:
@@ -75,7 +75,7 @@ def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.
                 take[check.nonzero()[:, 0][torch.as_tensor(hit, device=q.device)]] = False
         q = torch.where(take[:, None], q_new, q)
         r = torch.where(take[:, None], r_new, r)
-        lever = torch.where(take[:, None], lever_new, lever)
+        Jr = torch.where(take[:, None, None], Jr_new, Jr)
         cost = torch.where(take, cost_new, cost)
         lam = torch.where(take, lam * 0.3, lam * 10.0)
     return q, cost < cost0

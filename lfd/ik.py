@@ -170,8 +170,7 @@ def solve_ik_tensor(kin: KinematicModel, T_world_target: torch.Tensor, q_seed: t
     active = torch.ones(B, dtype=torch.bool, device=q.device)
 
     def errors(q):
-        J, T_world_ee = kin._chain.jacobian(q, ret_eef_pose=True)  # (B, 6, d), (B, 4, 4)
-        T_world_ee = T_world_ee.get_matrix() if hasattr(T_world_ee, "get_matrix") else T_world_ee
+        J, T_world_ee = kin.jacobian(q, with_pose=True)  # (B, 6, d), (B, 4, 4)
         R = T_world_ee[:, :3, :3]
         if p_ee_tool is not None:
             r = (R @ p_ee_tool[..., None])[..., 0]  # (B, 3) lever arm in the world frame

@@ -154,11 +154,15 @@ class KinematicModel:
             return T_world_ee[0]
         return T_world_ee.reshape(*q.shape[:-1], 4, 4)
 
-    def jacobian(self, q) -> torch.Tensor:
+    def jacobian(self, q, with_pose: bool = False):
         """Geometric Jacobian of the end link in the world frame: ``(B, d) -> (B, 6, d)``
-        (rows: linear velocity, then angular velocity)."""
+        (rows: linear velocity, then angular velocity). With ``with_pose``, also ``T_world_ee
+        (B, 4, 4)`` from the same forward pass: ``(J, T_world_ee)``, one FK instead of two."""
         q = self._check_q(q).reshape(-1, self.dof)
-        return self._chain.jacobian(q)
+        if not with_pose:
+            return self._chain.jacobian(q)
+        J, T_world_ee = self._chain.jacobian(q, ret_eef_pose=True)
+        return J, (T_world_ee.get_matrix() if hasattr(T_world_ee, "get_matrix") else T_world_ee)
 
     def within_limits(self, q, tol: float = 0.0) -> torch.Tensor:
         """``(B, d) -> (B,)`` bool: every joint within its URDF limits (+- ``tol``)."""

@@ -84,6 +84,21 @@ def test_fk_gradient_matches_finite_differences(kin64):
     torch.testing.assert_close(J_auto, J_fd, rtol=0, atol=1e-6)
 
 
+def test_jacobian_with_pose_is_fk_and_jacobian(kin64):
+    """``jacobian(q, with_pose=True)`` (one forward pass, used by IK and the projection) returns
+    the same pose as ``fk`` and the same Jacobian, whose linear rows match finite differences."""
+    Q = kin64.sample_uniform(8, generator=torch.Generator().manual_seed(3))
+    J, T_world_ee = kin64.jacobian(Q, with_pose=True)
+    torch.testing.assert_close(T_world_ee, kin64.fk(Q), rtol=0, atol=1e-12)
+    torch.testing.assert_close(J, kin64.jacobian(Q), rtol=0, atol=1e-12)
+    h = 1e-6
+    for j in range(7):
+        dq = torch.zeros(7, dtype=torch.float64)
+        dq[j] = h
+        fd = (kin64.fk(Q + dq)[:, :3, 3] - kin64.fk(Q - dq)[:, :3, 3]) / (2 * h)  # (8, 3)
+        torch.testing.assert_close(J[:, :3, j], fd, rtol=0, atol=1e-6)
+
+
 def test_unknown_robot_name():
     with pytest.raises(ValueError, match="unknown robot 'nope'.*baxter_left"):
         robot_from_name("nope")
