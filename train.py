@@ -47,6 +47,11 @@ def parse_args(argv=None):
                         "'none' lets the DTW move freely, as in the paper")
     p.add_argument("--offsets", type=int, nargs="+", default=None,
                    help="permitted time-step transitions (default: lfd.learn.FitConfig's)")
+    p.add_argument("--floor-task", type=float, default=None, metavar="M",
+                   help="variance floor of the tool-point features, a standard deviation in metres "
+                        "(lfd.priors; default: lfd.learn.FitConfig's)")
+    p.add_argument("--floor-joint", type=float, default=None, metavar="RAD",
+                   help="variance floor of the joint features, a standard deviation in radians")
     p.add_argument("--resume", action="store_true",
                    help="continue from the checkpoint in --out (same options and demonstrations)")
     args = p.parse_args(argv)
@@ -108,6 +113,7 @@ class Logger:
         for t in range(m.time_steps):
             for j, n in enumerate(names):
                 w.add_scalar(f"features/std/{n}", float(std[t, j]), t)
+            w.add_scalar("alignment/effective_demos", result.effective_demos[t], t)
         for i, a in enumerate(result.alignments):
             img = np.zeros((1, m.time_steps, len(a)), dtype=np.float32)  # (C, H = step, W = sample)
             img[0, a, np.arange(len(a))] = 1.0
@@ -175,7 +181,8 @@ def _train(args, out: Path, guard, progress: dict) -> int:
         raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")
     kw = {"tool": args.tool, "env": args.env, "seed": args.seed, "device": args.device}
     for key, val in (("restarts", args.restarts), ("covariance", args.covariance), ("init", args.init),
-                     ("offsets", tuple(args.offsets) if args.offsets else None)):
+                     ("offsets", tuple(args.offsets) if args.offsets else None),
+                     ("floor_task", args.floor_task), ("floor_joint", args.floor_joint)):
         if val is not None:
             kw[key] = val
     if args.band is not None:
@@ -235,6 +242,7 @@ def _train(args, out: Path, guard, progress: dict) -> int:
                "env_weights": {n: float(x) for n, x in zip(m.landmark_names, m.env.cpu().tolist())},
                "env_weights_before_pruning": result.env_before_pruning,
                "kept_landmarks": list(result.kept_landmarks), "virtual_det": list(result.virtual_det),
+               "effective_demos_per_step": [round(x, 2) for x in result.effective_demos],
                "warnings": list(result.warnings), "timings": result.timings}
     gt = ds.ground_truth  # evaluation only: never passed to the fit
     if gt:

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 __all__ = ["dtw_align", "min_samples", "random_alignment", "linear_alignment", "reference_alignments",
-           "alignment_step_counts"]
+           "alignment_step_counts", "step_occupancy", "effective_demos"]
 
 
 def min_samples(time_steps: int, offsets=(0, 1, 2)) -> int:
@@ -211,3 +211,24 @@ def alignment_step_counts(alignments, time_steps: int, offsets=(0, 1, 2)) -> np.
         for k, i in index.items():
             np.add.at(counts[:, i], a[:-1][d == k], 1)
     return counts
+
+
+def step_occupancy(alignments, time_steps: int) -> np.ndarray:
+    """``(M, T)``: how many observations of each demonstration each step holds."""
+    occ = np.zeros((len(alignments), time_steps), dtype=int)
+    for m, a in enumerate(alignments):
+        np.add.at(occ[m], np.asarray(a, dtype=int), 1)
+    return occ
+
+
+def effective_demos(alignments, time_steps: int) -> np.ndarray:
+    """``(T,)``: how many demonstrations each step's Gaussian really rests on, the inverse Simpson
+    index ``(sum_m n_mt)^2 / sum_m n_mt^2`` of the step's observations per demonstration ``n_mt``:
+    M when every demonstration gives it as many observations, 1 when one demonstration gives
+    all of them (0 for an empty step). Hard EM with long still phases (a pitcher held while it
+    pours, 100+ samples at 50 Hz) can reach a higher likelihood by giving each demonstration a
+    step of its own, with a Gaussian as narrow as that one demonstration; a planner then meets
+    steps that describe one scene, not the task. This number shows it."""
+    occ = step_occupancy(alignments, time_steps).astype(float)
+    tot, sq = occ.sum(0), (occ ** 2).sum(0)
+    return np.divide(tot ** 2, sq, out=np.zeros(time_steps), where=sq > 0)

@@ -42,7 +42,7 @@ import numpy as np
 import torch
 
 from lfd.checkpoint import CheckpointError, FitProgress, config_record, demos_fingerprint
-from lfd.dtw import linear_alignment, min_samples, random_alignment, reference_alignments
+from lfd.dtw import effective_demos, linear_alignment, min_samples, random_alignment, reference_alignments
 from lfd.em import EM_FAILURES, EMFitter, FitData
 from lfd.model import COVARIANCES, OFFSETS, TaskModel
 
@@ -143,6 +143,9 @@ class FitConfig:
             raise ValueError(f"FitConfig.restarts must be at least 1, got {self.restarts}")
         if sorted(set(self.offsets)) != sorted(self.offsets) or min(self.offsets) < 0 or 1 not in self.offsets:
             raise ValueError(f"FitConfig.offsets must be distinct, non-negative and include 1; got {self.offsets}")
+        if not (self.floor_joint > 0 and self.floor_task > 0):
+            raise ValueError(f"FitConfig.floor_joint and floor_task must be positive standard deviations, "
+                             f"got {self.floor_joint}, {self.floor_task}")
         if not 0 <= self.prune_threshold < 1:
             raise ValueError(f"FitConfig.prune_threshold must be in [0, 1), got {self.prune_threshold}")
         if not 0 < self.trans_floor < 1.0 / len(self.offsets):
@@ -163,6 +166,7 @@ class FitResult:
     env_before_pruning: dict
     alignments: tuple[np.ndarray, ...]
     virtual_det: tuple[float, ...]  # |det A| of K_virt^-1's linear part, per demonstration
+    effective_demos: tuple[float, ...]  # per step: demonstrations its Gaussian rests on (lfd.dtw)
     warnings: tuple[str, ...]
     timings: dict
     resumed_restarts: int = 0  # restarts taken from a checkpoint instead of run
@@ -376,6 +380,12 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
         notes.append(f"degenerate virtual landmark: |det A| of K_virt^-1 ranges {det.min():.3g}..{det.max():.3g} "
                      f"(1 for a rigid frame); the mixture shrinks or stretches the task features")
         warnings.warn(notes[-1], RuntimeWarning)
+    eff = effective_demos(align, T)
+    if len(align) >= 4 and float(np.median(eff)) < len(align) / 3:
+        notes.append(f"steps rest on few demonstrations: median {np.median(eff):.1f} of {len(align)} "
+                     f"effective demonstrations per step (min {eff.min():.1f}); the alignments give "
+                     f"demonstrations steps of their own, so those steps describe single scenes")
+        warnings.warn(notes[-1], RuntimeWarning)
     kept_names = tuple(names[i] for i in kept)
     model = TaskModel(tool, w, mu, sigma_inv, log_trans, kept_names, demoset.robot, demoset.task,
                       all_landmark_names=names, offsets=cfg.offsets, covariance=cfg.covariance,
@@ -388,7 +398,8 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     return FitResult(model=model, loss_history=tuple(histories), em_iterations=tuple(iters),
                      final_loss=float(final_loss), restart_losses=tuple(losses), best_restart=best_r,
                      kept_landmarks=kept_names, env_before_pruning=env_before, alignments=tuple(align),
-                     virtual_det=tuple(float(x) for x in det), warnings=tuple(notes),
+                     virtual_det=tuple(float(x) for x in det), effective_demos=tuple(float(x) for x in eff),
+                     warnings=tuple(notes),
                      timings={"fk_s": t_fk, "restarts_s": t_restarts,
                               "refit_s": total - t_fk - t_restarts, "total_s": total},
                      resumed_restarts=first)

@@ -107,3 +107,21 @@ def test_reference_alignments_reject_bad_input():
         reference_alignments([np.zeros((30, 2)), np.zeros((3, 2))], 8, ref=0)
     with pytest.raises(ValueError, match="one C"):
         reference_alignments([np.zeros((30, 2)), np.zeros((30, 3))], 8, ref=0)
+
+
+def test_effective_demos_counts_the_demonstrations_a_step_rests_on():
+    """Equal shares give M, one demonstration's private step gives 1 (each others' single
+    passing observation barely counts), an unvisited step 0; occupancy sums to the lengths."""
+    from lfd.dtw import effective_demos, step_occupancy
+
+    shared = [np.repeat(np.arange(4), 5) for _ in range(3)]  # 3 demos, 5 samples in each of 4 steps
+    np.testing.assert_allclose(effective_demos(shared, 4), [3.0, 3.0, 3.0, 3.0])
+    # demo 0 dwells 100 samples in step 1, the others pass it in one sample each
+    private = [np.array([0] * 5 + [1] * 100 + [2] * 5), np.array([0] * 5 + [1] + [2] * 5),
+               np.array([0] * 5 + [1] + [2] * 5)]
+    eff = effective_demos(private, 4)
+    np.testing.assert_allclose(eff[[0, 2]], [3.0, 3.0])
+    assert eff[1] == pytest.approx(102 ** 2 / (100 ** 2 + 2)) and eff[1] < 1.05
+    assert eff[3] == 0.0
+    occ = step_occupancy(private, 4)
+    assert occ.shape == (3, 4) and occ.sum(1).tolist() == [len(a) for a in private]
