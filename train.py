@@ -51,7 +51,8 @@ def parse_args(argv=None):
                    help="variance floor of the tool-point features, a standard deviation in metres "
                         "(lfd.priors; default: lfd.learn.FitConfig's)")
     p.add_argument("--floor-joint", type=float, default=None, metavar="RAD",
-                   help="variance floor of the joint features, a standard deviation in radians")
+                   help="variance floor of the joint features, a standard deviation in radians "
+                        "(default: lfd.learn.FitConfig's)")
     p.add_argument("--resume", action="store_true",
                    help="continue from the checkpoint in --out (same options and demonstrations)")
     args = p.parse_args(argv)

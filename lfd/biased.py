@@ -40,8 +40,7 @@ def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.
     eye = torch.eye(d, dtype=q.dtype, device=q.device)
 
     def residual(q):
-        """Residual ``(C, F)`` and its Jacobian ``(C, F, d)`` at
-        ``q``, from one forward pass."""
+        """Residual ``(C, F)`` and its Jacobian ``(C, F, d)`` at ``q``, from one forward pass."""
         J, T_world_ee = kin.jacobian(q, with_pose=True)  # (C, 6, d), (C, 4, 4)
         lever = T_world_ee[:, :3, :3] @ model.tool.detach()  # (C, 3) tool point offset, world
         x = (T_world_ee[:, :3, 3] + lever) @ A.T + b  # (C, 3) tool point in the virtual frame
@@ -59,7 +58,7 @@ def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.
     if batch_collision_fn is not None and iters > 0:
         guard = ~torch.as_tensor(np.asarray(batch_collision_fn(q.cpu().numpy()), dtype=bool), device=q.device)
     for _ in range(iters):
-        H = Jr.transpose(1, 2) @ Jr
+        H = Jr.transpose(1, 2) @ Jr  # (C, d, d)
         g = (Jr.transpose(1, 2) @ r[..., None])[..., 0]  # (C, d)
         dq = -torch.linalg.solve(H + lam[:, None, None] * (eye + torch.diag_embed(
             torch.diagonal(H, dim1=1, dim2=2))), g)

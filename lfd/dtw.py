@@ -217,7 +217,10 @@ def step_occupancy(alignments, time_steps: int) -> np.ndarray:
     """``(M, T)``: how many observations of each demonstration each step holds."""
     occ = np.zeros((len(alignments), time_steps), dtype=int)
     for m, a in enumerate(alignments):
-        np.add.at(occ[m], np.asarray(a, dtype=int), 1)
+        a = np.asarray(a, dtype=int)
+        if len(a) and (a.min() < 0 or a.max() >= time_steps):
+            raise ValueError(f"alignment {m} has steps outside 0..{time_steps - 1}")
+        np.add.at(occ[m], a, 1)
     return occ
 
 

@@ -143,7 +143,7 @@ class FitConfig:
             raise ValueError(f"FitConfig.restarts must be at least 1, got {self.restarts}")
         if sorted(set(self.offsets)) != sorted(self.offsets) or min(self.offsets) < 0 or 1 not in self.offsets:
             raise ValueError(f"FitConfig.offsets must be distinct, non-negative and include 1; got {self.offsets}")
-        if not (self.floor_joint > 0 and self.floor_task > 0):
+        if not all(math.isfinite(x) and x > 0 for x in (self.floor_joint, self.floor_task)):
             raise ValueError(f"FitConfig.floor_joint and floor_task must be positive standard deviations, "
                              f"got {self.floor_joint}, {self.floor_task}")
         if not 0 <= self.prune_threshold < 1:
@@ -166,7 +166,8 @@ class FitResult:
     env_before_pruning: dict
     alignments: tuple[np.ndarray, ...]
     virtual_det: tuple[float, ...]  # |det A| of K_virt^-1's linear part, per demonstration
-    effective_demos: tuple[float, ...]  # per step: demonstrations its Gaussian rests on (lfd.dtw)
+    effective_demos: tuple[float, ...]  # per step, in the final alignment (lfd.dtw.effective_demos);
+    # a warning when the median is under M / 3 (with M >= 4 demonstrations)
     warnings: tuple[str, ...]
     timings: dict
     resumed_restarts: int = 0  # restarts taken from a checkpoint instead of run
@@ -267,6 +268,16 @@ def _restore(progress: FitProgress, data: FitData, dtype, device):
     align = [a.astype(np.int64) for a in np.split(st["alignment"].numpy(), splits)]
     tensors = tuple(st[k].to(dtype=dtype, device=device) for k in ("tool", "env", "mu", "sigma_inv", "log_trans"))
     return progress.best_restart, (*tensors, align)
+
+
+def occupancy_note(eff: np.ndarray, n_demos: int) -> str | None:
+    """The fit's warning when its steps rest on few demonstrations (``eff (T,)``, see
+    ``lfd.dtw.effective_demos``): median under a third of ``n_demos``, with 4 or more."""
+    if n_demos < 4 or float(np.median(eff)) >= n_demos / 3:
+        return None
+    return (f"steps rest on few demonstrations: median {np.median(eff):.1f} of {n_demos} effective "
+            f"demonstrations per step (min {eff.min():.1f}); the alignments give demonstrations steps "
+            f"of their own, so those steps describe single scenes")
 
 
 def _progress(cfg, fingerprint, histories, losses, iters, notes, best) -> FitProgress:
@@ -381,10 +392,9 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
                      f"(1 for a rigid frame); the mixture shrinks or stretches the task features")
         warnings.warn(notes[-1], RuntimeWarning)
     eff = effective_demos(align, T)
-    if len(align) >= 4 and float(np.median(eff)) < len(align) / 3:
-        notes.append(f"steps rest on few demonstrations: median {np.median(eff):.1f} of {len(align)} "
-                     f"effective demonstrations per step (min {eff.min():.1f}); the alignments give "
-                     f"demonstrations steps of their own, so those steps describe single scenes")
+    note = occupancy_note(eff, len(align))
+    if note:
+        notes.append(note)
         warnings.warn(notes[-1], RuntimeWarning)
     kept_names = tuple(names[i] for i in kept)
     model = TaskModel(tool, w, mu, sigma_inv, log_trans, kept_names, demoset.robot, demoset.task,

@@ -145,7 +145,7 @@ def _stats(values) -> dict:
 def summarize(runs: list[dict], variant: Variant, learning_time_s: float) -> dict:
     """One variant's line of ``results.json``. Latencies, each ``{median, p95}`` in ms:
     ``initial_ms`` and ``replan_ms`` are the searches alone (the paper's planning latency);
-    ``build_ms`` is the roadmap's construction before the first plan, and ``reaction_ms`` a
+    ``build_ms`` is the first landmark update (the roadmap's construction) before the first plan, and ``reaction_ms`` a
     re-plan's landmark update (new step costs, new biased vertices after a far move) plus its
     search: the time from sensing a move to holding the new plan. Runs logged before the update
     was timed have no ``build_ms``/``replan_update_ms`` and are left out of those two."""
@@ -168,20 +168,22 @@ def summarize(runs: list[dict], variant: Variant, learning_time_s: float) -> dic
     }
 
 
+def _ms(stats: dict | None) -> str:
+    """The median of ``{median, p95}`` in whole ms, '-' when missing or NaN."""
+    x = (stats or {}).get("median", math.nan)
+    return "-" if math.isnan(x) else f"{x:.0f}ms"
+
+
 def format_table(results: dict, task: str) -> str:
     """The paper's table: medians of the latencies (``summarize``); '-' where none was measured."""
     head = f"{'Tool landmark':<14} {'Environment landmark':<21} {'Success':>8} {'Learning':>9} " \
            f"{'Plan (init)':>12} {'Replan':>9} {'Reaction':>9}"
     lines = [f"{task}: success rate over {max((v['n_scenarios'] for v in results.values()), default=0)} "
              f"scenarios", head, "-" * len(head)]
-
-    def ms(stats: dict | None) -> str:
-        x = (stats or {}).get("median", math.nan)
-        return "-" if math.isnan(x) else f"{x:.0f}ms"
     for name, v in results.items():
         lines.append(f"{v['tool_landmark']:<14} {v['env_landmark']:<21} {v['success_rate']:>8.0%} "
-                     f"{v['learning_time_s']:>8.1f}s {ms(v['initial_ms']):>12} {ms(v['replan_ms']):>9} "
-                     f"{ms(v.get('reaction_ms')):>9}")
+                     f"{v['learning_time_s']:>8.1f}s {_ms(v['initial_ms']):>12} {_ms(v['replan_ms']):>9} "
+                     f"{_ms(v.get('reaction_ms')):>9}")
     lines.append("Plan and Replan: the search alone (the paper's latency); Reaction: a re-plan with the "
                  "landmark update before it (new biased vertices after a far move)")
     return "\n".join(lines)

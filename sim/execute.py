@@ -10,12 +10,12 @@ demonstrations' expected time in that step (``expected_sojourn``), and at least 
 interval. The path in configuration space is the plan's; only its timing is chosen here. Every
 ``sense_period`` seconds the executor senses the landmarks; when a task-relevant one has moved more
 than ``replan_threshold`` the planner re-plans from the commanded configuration and the current
-time step, and the rest of the old plan is dropped. Every re-plan's latency is recorded twice:
+time step, and the rest of the old plan is dropped. Every re-plan's latency is recorded in two parts:
 ``replan_ms``, the search alone (``PlanResult.latency_s``, what the paper reports), and
 ``replan_update_ms``, the landmark update before it (new step costs, and new biased vertices
 when the landmarks moved far: ``TaskPlanner.update_landmarks``); their sum is the time from
-sensing the move to holding the new plan. ``build_ms`` is the first update (the roadmap's
-construction), which precedes the initial plan's ``initial_ms``.
+sensing the move to holding the new plan. ``build_ms`` is this execution's first update (the
+roadmap's construction when the planner is new), which precedes the initial plan's ``initial_ms``.
 
 Success is the paper's: nothing the arm or tool touches (table, containers, obstacles) and at least
 ``success_fraction`` of the particles inside the bowl once they have settled.
@@ -83,7 +83,7 @@ class RunResult:
     contacts: list = field(default_factory=list)       # [{"body": name, "link": name, "t_s": time}]
     initial_ms: float = math.nan
     replan_ms: list = field(default_factory=list)
-    build_ms: float = math.nan  # the first landmark update: the roadmap's construction
+    build_ms: float = math.nan  # the first landmark update (the roadmap's construction if new)
     replan_update_ms: list = field(default_factory=list)  # the landmark update before each re-plan
     n_replans: int = 0
     plan_statuses: list = field(default_factory=list)

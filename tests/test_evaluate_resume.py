@@ -9,6 +9,7 @@ variant: ``ensure_model`` only checks that they exist.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -181,7 +182,11 @@ def test_summary_reaction_times_only_from_timed_runs():
     assert s["replan_ms"]["median"] == pytest.approx(2.5)  # 1, 2, 3, 4
     assert s["reaction_ms"]["median"] == pytest.approx(23.5)  # 13, 34
     assert s["build_ms"]["median"] == pytest.approx(7.0)
+    assert s["reaction_ms"]["p95"] == pytest.approx(13 + 0.95 * (34 - 13))
+    # a run whose update times do not pair with its searches is left out of the reaction
+    odd = {**_row(v.name, 2), "replan_update_ms": [5.0], "build_ms": 1.0}
+    assert ev.summarize([new, odd], v, 1.0)["reaction_ms"]["median"] == pytest.approx(23.5)
     only_old = ev.summarize([old], v, 1.0)
-    assert only_old["reaction_ms"]["median"] != only_old["reaction_ms"]["median"]  # NaN: none timed
+    assert math.isnan(only_old["reaction_ms"]["median"]) and math.isnan(only_old["build_ms"]["median"])
     table = ev.format_table({v.name: s, "old": only_old}, TASK)
     assert "24ms" in table and table.splitlines()[-2].split()[-1] == "-"

@@ -92,11 +92,16 @@ def test_jacobian_with_pose_is_fk_and_jacobian(kin64):
     torch.testing.assert_close(T_world_ee, kin64.fk(Q), rtol=0, atol=1e-12)
     torch.testing.assert_close(J, kin64.jacobian(Q), rtol=0, atol=1e-12)
     h = 1e-6
-    for j in range(7):
-        dq = torch.zeros(7, dtype=torch.float64)
+    for j in range(kin64.dof):
+        dq = torch.zeros(kin64.dof, dtype=torch.float64)
         dq[j] = h
-        fd = (kin64.fk(Q + dq)[:, :3, 3] - kin64.fk(Q - dq)[:, :3, 3]) / (2 * h)  # (8, 3)
+        Tp, Tm = kin64.fk(Q + dq), kin64.fk(Q - dq)  # (8, 4, 4)
+        fd = (Tp[:, :3, 3] - Tm[:, :3, 3]) / (2 * h)  # (8, 3)
         torch.testing.assert_close(J[:, :3, j], fd, rtol=0, atol=1e-6)
+        # angular rows: dR/dq_j R^T = skew(omega_j)
+        W = (Tp[:, :3, :3] - Tm[:, :3, :3]) / (2 * h) @ T_world_ee[:, :3, :3].transpose(1, 2)  # (8, 3, 3)
+        omega = torch.stack([W[:, 2, 1], W[:, 0, 2], W[:, 1, 0]], dim=1)  # (8, 3)
+        torch.testing.assert_close(J[:, 3:, j], omega, rtol=0, atol=1e-6)
 
 
 def test_unknown_robot_name():

@@ -122,6 +122,11 @@ def test_fit_recovers_tool_point_and_landmark(synth, kin):
     assert all(torch.isfinite(x).all() for x in (m.mu, m.sigma_inv, m.tool))
     assert len(res.restart_losses) == 3 and res.final_loss <= min(res.restart_losses) + 1e-9
     assert all(a[0] == 0 and a[-1] == T_STEPS - 1 for a in res.alignments)
+    # the synthetic demonstrations share every step: no demonstration has steps of its own
+    from lfd.dtw import effective_demos
+    np.testing.assert_allclose(res.effective_demos, effective_demos(res.alignments, T_STEPS))
+    assert np.median(res.effective_demos) > len(ds.demos) / 3
+    assert not any("rest on few demonstrations" in w for w in res.warnings)
     assert np.isfinite(m.log_trans.exp().numpy()).all() and (m.log_trans.exp() > 0).sum() == 3 * T_STEPS - 3
     for hist in res.loss_history:  # EM never increases the objective
         assert all(b <= a + 1e-6 for a, b in zip(hist, hist[1:]))
@@ -176,3 +181,13 @@ def test_tool_search_starts_lbfgs_from_the_best_grid_point(synth, kin):
     assert np.linalg.norm(start.numpy() - truth.tool) < np.linalg.norm(far.numpy() - truth.tool)
     off = FitConfig(time_steps=T_STEPS, tool_search=0.0)
     assert torch.equal(_fitter(ds, kin, off)[1].search_tool(far, w, t_idx), far)
+
+
+def test_occupancy_note_warns_below_a_third():
+    """The fit warns when the median step rests on under a third of the demonstrations."""
+    from lfd.learn import occupancy_note
+
+    pour_like = np.array([1.2, 2.0, 3.3, 3.3, 6.0, 10.0])  # median 3.3 of 11
+    assert "median 3.3 of 11" in occupancy_note(pour_like, 11)
+    assert occupancy_note(np.full(6, 6.4), 11) is None  # the powder model's median
+    assert occupancy_note(np.full(6, 1.0), 3) is None  # too few demonstrations to judge

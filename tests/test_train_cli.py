@@ -279,6 +279,8 @@ def test_nan_restart_is_dropped_with_a_warning(synth_dir, tmp_path, monkeypatch,
     assert summary["restart_losses"][0] is None and math.isfinite(summary["restart_losses"][1])
     assert summary["best_restart"] == 1 and math.isfinite(summary["final_loss"])
     assert any("restart 0 dropped: non-finite loss" in w for w in summary["warnings"])
+    eff = summary["effective_demos_per_step"]  # one per step, each between 0 and the demonstrations
+    assert len(eff) == summary["time_steps"] and all(0 <= x <= summary["n_demos"] + 1e-9 for x in eff)
     assert "warning: restart 0 dropped" in capsys.readouterr().out
     import torch
     state = torch.load(out / "model.pt", weights_only=True)
