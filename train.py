@@ -39,9 +39,9 @@ def parse_args(argv=None):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
     p.add_argument("--covariance", default=None, choices=("full", "block"))
-    p.add_argument("--init", default=None, choices=("reference", "random"),  # lfd.learn.INITS (torch-free here)
-                   help="restarts' first alignments: DTW onto a reference demonstration (default) "
-                        "or independent random warps (the paper's)")
+    p.add_argument("--init", default=None, choices=("reference", "random", "linear"),  # lfd.learn.INITS
+                   help="restarts' first alignments: DTW onto a reference demonstration (default), "
+                        "independent random warps (the paper's) or the uniform time warp")
     p.add_argument("--band", default=None, metavar="N|none",
                    help="keep every alignment within N steps of its restart's start (default 1); "
                         "'none' lets the DTW move freely, as in the paper")

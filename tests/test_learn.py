@@ -38,7 +38,7 @@ def test_config_options_are_validated():
         FitConfig(covariance="diag")
     with pytest.raises(ValueError, match="FitConfig.device"):
         FitConfig(device="tpu")
-    with pytest.raises(ValueError, match=r"FitConfig.init must be one of reference, random; got 'dtw'"):
+    with pytest.raises(ValueError, match=r"FitConfig.init must be one of reference, random, linear; got 'dtw'"):
         FitConfig(init="dtw")
     with pytest.raises(ValueError, match="FitConfig.band"):
         FitConfig(band=-1)
@@ -59,6 +59,25 @@ def test_band_keeps_the_e_step_near_the_start(synth, kin, band):
     for a0, a in zip(align0, state[-1]):
         assert np.abs(a - a0).max() <= band
     assert all(b <= a + 1e-9 for a, b in zip(hist, hist[1:]))
+
+
+def test_linear_init_with_band_0_keeps_the_uniform_warp(synth, kin):
+    """init='linear' starts every restart from the uniform time warp; with band 0 the fit's
+    alignment is that warp, every step rests on every demonstration (effective_demos = M up to
+    the uneven split of S_m into T parts), and the fit still recovers the tool point."""
+    from lfd.dtw import effective_demos, linear_alignment
+
+    ds, truth = synth
+    cfg = FitConfig(time_steps=T_STEPS, init="linear", band=0, restarts=2, seed=0)
+    lengths = [d.n_samples for d in ds.demos]
+    guesses = initial_guesses(0, lengths, T_STEPS, len(ds.landmark_names), cfg)
+    for _ in range(2):
+        align0, _, _ = next(guesses)
+        assert all(np.array_equal(a, linear_alignment(n, T_STEPS)) for a, n in zip(align0, lengths))
+    res = fit(ds, kin, cfg)
+    assert all(np.array_equal(a, linear_alignment(n, T_STEPS)) for a, n in zip(res.alignments, lengths))
+    assert min(res.effective_demos) > 0.9 * len(ds.demos)
+    assert np.linalg.norm(res.model.tool.numpy() - truth.tool) < 0.02
 
 
 @pytest.mark.parametrize("covariance", ["full", "block"])
