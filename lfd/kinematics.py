@@ -156,8 +156,9 @@ class KinematicModel:
 
     def jacobian(self, q, with_pose: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """Geometric Jacobian of the end link in the world frame: ``(B, d) -> (B, 6, d)``
-        (rows: linear velocity, then angular velocity; a single ``(d,)`` gives ``(1, 6, d)``). With ``with_pose``, also ``T_world_ee
-        (B, 4, 4)`` from the same forward pass: ``(J, T_world_ee)``, one FK instead of two."""
+        (rows: linear velocity, then angular velocity; a single ``(d,)`` gives ``(1, 6, d)``).
+        With ``with_pose``, also ``T_world_ee (B, 4, 4)`` from the same forward pass:
+        ``(J, T_world_ee)``, one FK instead of two."""
         q = self._check_q(q).reshape(-1, self.dof)
         if not with_pose:
             return self._chain.jacobian(q)
