@@ -147,8 +147,9 @@ def summarize(runs: list[dict], variant: Variant, learning_time_s: float) -> dic
     ``initial_ms`` and ``replan_ms`` are the searches alone (the paper's planning latency);
     ``build_ms`` is the first landmark update (the roadmap's construction) before the first
     plan, and ``reaction_ms`` a re-plan's landmark update (new step costs, new biased vertices
-    after a far move) plus its search: the time from sensing a move to holding the new plan. Runs logged before the update
-    was timed have no ``build_ms``/``replan_update_ms`` and are left out of those two."""
+    after a far move) plus its search: the time from sensing a move to holding the new plan.
+    Runs logged before the update was timed have no ``build_ms``/``replan_update_ms`` and are
+    left out of those two."""
     init = [r["initial_ms"] for r in runs if not math.isnan(r["initial_ms"])]
     rep = [x for r in runs for x in r["replan_ms"]]
     build = [r["build_ms"] for r in runs if not math.isnan(r.get("build_ms", math.nan))]
