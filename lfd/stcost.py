@@ -52,12 +52,8 @@ held at the same configuration (its ``1 + D`` intervals): without that, skipping
 cheap way past a step the demonstrations stayed in long (``-log p`` of a skip is a few units,
 a stay tens of intervals), whatever the configuration. Motion inside a step is charged on top
 of the stay, not instead of part of it: a slight over-charge for moving, which keeps costs per
-edge. Measured on the 48-step pour (base seed 0): the four scenes that poured 62-78% with one
-interval per step poured 82-100%, but of the first 9 scenes only 5 succeeded (8 with one
-interval): the plans now move between pouring postures, and while tilted some of those moves
-carry the spout 13-19 cm off the bowl, or tilt before the spout is over it. Not the default.
-(Those runs charged about half the stay: ``trans_scale`` was missing and p(t|t) was read as p^2.
-With the fix, 7 of the same 9 scenes succeeded: two still spilled 75-98% beside the bowl.)
+edge. Not the default: on the 48-step pour it fixed partial pours but its plans move between
+pouring postures and some spill beside the bowl (measurements: README, *Results*).
 
 A* heuristic: ``lfd.stheuristic``, the cost-to-go of a relaxed problem (roadmap edges charged
 only their self-transition part), a consistent lower bound computed for all vertices at once.
