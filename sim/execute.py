@@ -4,10 +4,10 @@ The arm follows the planned waypoints under PyBullet's position control at the p
 (``layout.SIM_DT``, 240 Hz), moving each roadmap edge with a minimum-jerk profile (it starts and
 stops at rest, so the powder or liquid is not flung out by velocity jumps at the waypoints) whose
 peak joint speeds stay within ``speed`` times the URDF velocity limits and peak accelerations
-within ``accel``;
-at each time-step transition it waits until the step it leaves has lasted as long as the
-demonstrations' expected time in that step (``expected_sojourn``), and at least one sampling
-interval. The path in configuration space is the plan's; only its timing is chosen here. Every
+within ``accel``; at each time-step transition ``t0 -> t1`` it waits, at least one sampling
+interval, until it has been in step ``t0`` as long as the demonstrations took on average to get
+from ``t0`` to ``t1`` (``lfd.timing.step_clock``: skipped steps keep their time). The path in
+configuration space is the plan's; only its timing is chosen here (``lfd.timing``). Every
 ``sense_period`` seconds the executor senses the landmarks; when a task-relevant one has moved more
 than ``replan_threshold`` the planner re-plans from the commanded configuration and the current
 time step, and the rest of the old plan is dropped. Every re-plan's latency is recorded in two parts:
@@ -30,20 +30,21 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pybullet as p
 
+from lfd.timing import PROFILES, plan_segments, profile_at, step_clock
 from sim import layout as L
 
-__all__ = ["ExecSettings", "RunResult", "execute_plan", "plan_segments", "profile_at"]
+__all__ = ["ExecSettings", "PACES", "RunResult", "execute_plan"]
 
-PROFILES = ("min-jerk", "linear")
-# min-jerk s(a) = 10a^3 - 15a^4 + 6a^5 on a in [0, 1]: peak ds/da = 15/8, peak d2s/da2 = 10/sqrt(3)
-_MJ_PEAK_V, _MJ_PEAK_A = 1.875, 10.0 / math.sqrt(3.0)
+PACES = ("demonstrated", "fastest")
 
 
 @dataclass(frozen=True)
 class ExecSettings:
     """speed: fraction of the joint velocity limits used on roadmap edges; accel: joint
     acceleration limit (rad/s^2) of the min-jerk profile; profile: "min-jerk" (rest to rest on
-    every edge) or "linear" (constant speed, velocity jumps at the waypoints); sense_period: seconds
+    every edge) or "linear" (constant speed, velocity jumps at the waypoints); pace: "demonstrated"
+    (time-step transitions at the demonstrations' mean clock) or "fastest" (one sampling interval
+    per transition); sense_period: seconds
     between landmark readings; replan_threshold: landmark motion (m) that triggers a re-plan;
     settle_s: time held at the end before particles are counted; success_fraction: particles in the
     bowl needed; force: position-control force (N m); record_every: sim steps between recorded
@@ -52,6 +53,7 @@ class ExecSettings:
     speed: float = 0.5
     accel: float = 2.0
     profile: str = "min-jerk"
+    pace: str = "demonstrated"
     sense_period: float = 0.1
     replan_threshold: float = 0.01
     settle_s: float = 1.5
@@ -66,6 +68,8 @@ class ExecSettings:
             raise ValueError(f"speed must be in (0, 1], got {self.speed}")
         if self.profile not in PROFILES:
             raise ValueError(f"profile must be one of {PROFILES}, got {self.profile!r}")
+        if self.pace not in PACES:
+            raise ValueError(f"pace must be one of {PACES}, got {self.pace!r}")
         if self.accel <= 0:
             raise ValueError(f"accel must be positive, got {self.accel}")
         if self.sense_period <= 0 or self.replan_threshold <= 0:
@@ -96,57 +100,6 @@ class RunResult:
         if not with_path:
             d.pop("task_point_path")
         return d
-
-
-def profile_at(a: float, profile: str = "min-jerk") -> tuple[float, float]:
-    """Progress ``s`` and its rate ``ds/da`` at phase ``a`` in [0, 1] of a segment."""
-    if profile == "linear":
-        return a, 1.0
-    return a ** 3 * (10 - 15 * a + 6 * a * a), 30 * a * a * (1 - a) ** 2
-
-
-def plan_segments(configurations: np.ndarray, time_steps: np.ndarray, vmax: np.ndarray, dt: float,
-                  speed: float, sojourn: np.ndarray | None = None, accel: float | None = None
-                  ) -> list[tuple[np.ndarray, np.ndarray, float, int]]:
-    """Timed segments ``(q_from, q_to, duration_s, time_step)`` of a plan.
-
-    A roadmap edge (q changes, t constant) takes ``max_j |dq_j| / (speed vmax_j)`` at constant
-    speed; with ``accel`` (rad/s^2) it is timed for the min-jerk profile instead, the shortest
-    duration whose peak speed ``1.875 |dq_j| / T`` and peak acceleration ``5.77 |dq_j| / T^2`` stay
-    within ``speed vmax_j`` and ``accel`` for every joint. A time-step
-    transition (q constant) dwells at least one sampling interval ``dt``; with ``sojourn (T,)``,
-    the expected time the demonstrations spent in each step, it dwells until the step being left
-    has lasted that long (the demonstrations' pace: pouring and dumping take the time they took
-    when demonstrated, which the particles need). ``time_step`` is the task time step during the
-    segment.
-    """
-    segs = []
-    spent = 0.0
-    for i in range(len(configurations) - 1):
-        q0, q1 = configurations[i], configurations[i + 1]
-        t0, t1 = int(time_steps[i]), int(time_steps[i + 1])
-        dq = np.abs(q1 - q0)
-        if accel is None:
-            move = float(np.max(dq / (speed * vmax)))
-        else:
-            move = float(max(np.max(_MJ_PEAK_V * dq / (speed * vmax)),
-                             np.sqrt(_MJ_PEAK_A * np.max(dq) / accel)))
-        if move > 1e-9:
-            segs.append((q0, q1, move, t0))
-            spent += move
-        if t1 != t0:
-            wait = dt if sojourn is None else max(dt, float(sojourn[t0]) - spent)
-            segs.append((q1, q1, wait, t0))
-            spent = 0.0
-    return segs
-
-
-def expected_sojourn(log_trans: np.ndarray, offsets, dt: float) -> np.ndarray:
-    """``(T,)`` expected seconds per time step of the learned chain: ``dt / (1 - p(t | t))``."""
-    if 0 not in offsets:
-        return np.full(len(log_trans), dt)
-    p_stay = np.exp(np.asarray(log_trans)[:, list(offsets).index(0)])
-    return dt / np.clip(1.0 - p_stay, 1e-3, 1.0)
 
 
 TOUCH_DISTANCE = 0.001  # m: a contact point at most this far apart is a touch
@@ -205,7 +158,8 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
     dt = float(model.task.dt) if model.task is not None else 0.1
     tool = model.tool.detach().cpu().numpy()
     keep = model.landmark_names
-    sojourn = expected_sojourn(model.log_trans.detach().cpu().numpy(), model.offsets, dt)
+    clock = (step_clock(model.log_trans.detach().cpu().numpy(), model.offsets, dt)
+             if s.pace == "demonstrated" else None)  # (T,)
     result = RunResult()
     q_cmd = np.asarray(L.HOME_Q if q_start is None else q_start, dtype=float)
     world.set_q(q_cmd)
@@ -226,7 +180,7 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         return result
     planned_at = _relevant(names, poses, keep)
     accel = s.accel if s.profile == "min-jerk" else None
-    segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed, sojourn, accel)
+    segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed, clock, accel)
     sense_every = max(1, int(round(s.sense_period / L.SIM_DT)))
     moved = scenario is None or scenario.bowl_after is None
     step, t_now, seg_i, seg_t = 0, 0, 0, 0.0
@@ -270,7 +224,7 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         result.edges_evaluated.append(res.n_edges_evaluated)
         planned_at = now
         if res.ok:
-            segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed, sojourn, accel)
+            segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed, clock, accel)
             seg_i, seg_t = 0, 0.0
     settle = int(s.settle_s / L.SIM_DT)
     for k in range(settle):

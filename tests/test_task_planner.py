@@ -1,4 +1,4 @@
-"""TaskPlanner glue, FK cache, chain edges, and the executor's plan timing (no simulator needed)."""
+"""TaskPlanner glue, FK cache, chain edges (no simulator needed; plan timing: test_timing.py)."""
 
 from __future__ import annotations
 
@@ -100,23 +100,6 @@ def test_cost_floor_per_step_is_the_models_log_det(kin, cost_floor):
         TaskPlannerSettings(cost_floor="none")
 
 
-def test_plan_segments_respect_velocity_limits_and_pace():
-    from sim.execute import expected_sojourn, plan_segments
-    vmax = np.array([1.5] * 4 + [4.0] * 3)
-    Q = np.array([np.zeros(7), np.full(7, 0.3), np.full(7, 0.3), np.full(7, 0.9)])
-    steps = np.array([0, 0, 1, 1])
-    log_trans = np.log(np.array([[0.9, 0.1, 1e-9], [0.5, 0.5, 1e-9]]))
-    soj = expected_sojourn(log_trans, (0, 1, 2), dt=0.1)
-    assert soj == pytest.approx([1.0, 0.2])
-    segs = plan_segments(Q, steps, vmax, dt=0.1, speed=0.5, sojourn=soj)
-    move0, wait, move1 = segs
-    assert move0[2] == pytest.approx(0.3 / (0.5 * 1.5))            # slowest joint at half its limit
-    assert wait[2] == pytest.approx(1.0 - move0[2]) and wait[3] == 0  # step 0 lasts its expected time
-    assert move1[2] == pytest.approx(0.6 / 0.75) and move1[3] == 1
-    no_pace = plan_segments(Q, steps, vmax, dt=0.1, speed=0.5)
-    assert no_pace[1][2] == pytest.approx(0.1)                       # one sampling interval
-
-
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
 def test_project_to_model_recovers_the_configuration_of_reachable_features(dtype):
     """Features of a known configuration as the target: Gauss-Newton from a perturbed start
@@ -159,31 +142,6 @@ def test_project_to_model_trades_tool_error_for_joints_as_the_covariance_says():
         errs[name] = (float((x - f_t[:, 7:]).norm()), float((q - q_t).norm()))
     assert errs["tight"][0] < 0.005 < errs["loose"][0]      # tight: the tool point reaches its target
     assert errs["loose"][1] < 0.02 < errs["tight"][1]       # loose: the joints barely move
-
-
-def test_min_jerk_segments_respect_speed_and_acceleration_limits():
-    """Timed for the min-jerk profile, each edge's sampled joint speeds stay within speed * vmax
-    and its accelerations within accel; the profile starts and ends at rest."""
-    from sim.execute import plan_segments, profile_at
-    vmax = np.array([1.5] * 4 + [4.0] * 3)
-    rng = np.random.default_rng(0)
-    Q = np.cumsum(rng.uniform(-0.6, 0.6, (6, 7)), axis=0)
-    segs = plan_segments(Q, np.zeros(6, int), vmax, dt=0.1, speed=0.5, accel=2.0)
-    a = np.linspace(0, 1, 2001)
-    for q0, q1, dur, _ in segs:
-        s = np.array([profile_at(x)[0] for x in a])
-        q = q0 + s[:, None] * (q1 - q0)  # (N, 7)
-        h = dur / (len(a) - 1)
-        v = np.diff(q, axis=0) / h
-        acc = np.diff(v, axis=0) / h
-        assert np.all(np.abs(v) <= 0.5 * vmax * (1 + 1e-3))
-        assert np.abs(acc).max() <= 2.0 * (1 + 1e-2)
-        assert max(np.abs(v).max() / (0.5 * vmax).max(), np.abs(acc).max() / 2.0) > 0.5  # not needlessly slow
-    assert profile_at(0.0) == (0.0, 0.0) and profile_at(1.0)[0] == pytest.approx(1.0)
-    assert profile_at(1.0)[1] == pytest.approx(0.0)
-    with pytest.raises(ValueError, match="profile must be one of"):
-        from sim.execute import ExecSettings
-        ExecSettings(profile="cubic")
 
 
 def test_region_samples_follow_the_inflated_joint_gaussians(kin):
