@@ -20,9 +20,10 @@ def parse(argv=None):
     ap.add_argument("--scenario-seed", type=int, default=0, help="which scenario to plan in")
     ap.add_argument("--roadmap-size", type=int, default=None,
                     help="PRM* vertices (default: 1000 per 24 time steps of the model)")
-    ap.add_argument("--dwell", choices=("interval", "expected"), default="interval",
+    ap.add_argument("--dwell", choices=("interval", "expected", "occupancy"), default="interval",
                     help="what a plan charges for a time step: one sampling interval (the paper's), "
-                         "or the demonstrations' expected stay in it (see lfd/stcost.py)")
+                         "the demonstrations' expected stay in it, or their mean time in it, as "
+                         "executed (see lfd/stcost.py)")
     ap.add_argument("--gui", action="store_true", help="watch in the PyBullet GUI")
     ap.add_argument("--execute", action="store_true", help="also execute the plan closed-loop")
     ap.add_argument("--plot", action="store_true", help="plot the plan against the learned means")

@@ -54,6 +54,11 @@ a stay tens of intervals), whatever the configuration. Motion inside a step is c
 of the stay, not instead of part of it: a slight over-charge for moving, which keeps costs per
 edge. Not the default: on the 48-step pour it fixed partial pours but its plans move between
 pouring postures and some spill beside the bowl (measurements: README, *Results*).
+With ``dwell="occupancy"``, ``D_t = occ_t / dt - 1`` intervals (at least 0), where
+``occ_t = clock[t + 1] - clock[t]`` is the learned chain's mean time in step t per run, skipped
+runs included (``lfd.timing.step_clock``): exactly how long ``sim.execute`` holds a configuration
+in that step. Unlike the expected stay, a step that most demonstrations passed through at once
+and one stayed in long weighs only its share of the demonstrated time.
 
 A* heuristic: ``lfd.stheuristic``, the cost-to-go of a relaxed problem (roadmap edges charged
 only their self-transition part), a consistent lower bound computed for all vertices at once.
@@ -74,11 +79,12 @@ import torch
 
 from lfd.roadmap import Roadmap
 from lfd.stheuristic import dwell_charge, relaxed_cost_to_go, source_bound
+from lfd.timing import step_clock
 
 __all__ = ["CostSettings", "CostError", "SpatiotemporalCosts", "EDGE_CHECKS", "DWELLS"]
 
 EDGE_CHECKS = ("path", "expand")
-DWELLS = ("interval", "expected")
+DWELLS = ("interval", "expected", "occupancy")
 MAX_STAY = 0.999  # p(t | t) above this counts as this in the expected dwell (at most 999 intervals)
 
 
@@ -101,9 +107,10 @@ class CostSettings:
     as free and the planner checks only the edges of the path it returns, dropping colliding
     ones and searching again until the path is free; far fewer checks);
     dwell: what a time edge charges for the step it leaves, see *Dwell* in the module docstring:
-    "interval" (the paper's: one sampling interval, charged at the step it enters) or "expected"
+    "interval" (the paper's: one sampling interval, charged at the step it enters), "expected"
     (also the step's expected further stay ``p/(1-p)`` intervals, ``p = p(t|t)``, at the
-    configuration it is left from);
+    configuration it is left from) or "occupancy" (also the rest of the step's mean time per
+    demonstration, ``lfd.timing.step_clock``: the executor's pace);
     trans_scale: ``log_trans`` is this multiple of the log transition probabilities
     (``lfd.task_planner`` passes ``2 log p``, Eq. 3 units, and sets 2): the expected dwell reads
     ``p = exp(log_trans / trans_scale)``."""
@@ -185,11 +192,15 @@ class SpatiotemporalCosts:
         if settings.dwell == "expected":
             p = np.minimum(np.exp(-trans[:, 0] / settings.trans_scale), MAX_STAY)  # 0: no staying
             self.dwell = p / (1.0 - p)
-            self.dwell[-1] = 0.0  # the last step is never left
+        elif settings.dwell == "occupancy":
+            order = np.argsort(offsets)
+            clock = step_clock(lt[:, order] / settings.trans_scale, sorted(offsets), 1.0)  # (T,) intervals
+            self.dwell = np.maximum(np.diff(clock, append=clock[-1]) - 1.0, 0.0)
+        self.dwell[-1] = 0.0  # the last step is never left
         stay = np.where(np.isfinite(trans[:, 0]), trans[:, 0], 0.0)
         self.stay_cost = np.where(self.dwell > 0, self.dwell * stay, 0.0)  # (T,)
         # what the heuristic needs to charge the same (None: one interval per time edge)
-        self._dwell_terms = (self.dwell, self.stay_cost) if settings.dwell == "expected" else None
+        self._dwell_terms = (self.dwell, self.stay_cost) if settings.dwell != "interval" else None
         self.time_offsets = tuple(k for k in offsets if k > 0)
         self._step_nll: Callable | None = None
         self._temp: dict[int, np.ndarray] = {}

@@ -99,3 +99,12 @@ def test_closed_pipe_ends_quietly(results, cid):
     r = results[cid]
     assert r.stderr == "", r.stderr  # no traceback, no "Exception ignored ... BrokenPipeError"
     assert r.returncode == EXIT_BROKEN_PIPE
+
+
+def test_plan_dwell_choices_are_the_librarys():
+    """plan.py lists ``--dwell`` without importing torch; every library option parses."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    import plan
+    from lfd.stcost import DWELLS
+    for choice in DWELLS:
+        assert plan.parse(["--model", "x", "--dwell", choice]).dwell == choice

@@ -57,10 +57,20 @@ def reference_graph(rm, step_nll, log_trans, dt, vmax, q_start, quad_dt=None, fl
 
     dwell="expected": a time edge leaving step t also pays p/(1-p) more intervals there
     (p = p(t|t)), each at -log p(t|t) plus the step cost of where it leaves from, and a step it
-    skips 1 + p/(1-p) intervals at that configuration."""
+    skips 1 + p/(1-p) intervals at that configuration; dwell="occupancy" the same with the step's
+    mean intervals per run, P(visit t) / (1 - p), less one, instead of p/(1-p)."""
     T = log_trans.shape[0]
     p_stay = np.minimum(np.exp(log_trans[:, 0]), 0.999)
     D = p_stay / (1 - p_stay) if dwell == "expected" else np.zeros(T)
+    if dwell == "occupancy":  # intervals per run: P(visit t) / (1 - p(t|t)), by forward recursion
+        visit = np.zeros(T)
+        visit[0] = 1.0
+        for t in range(T - 1):
+            for k_ in (1, 2):
+                if t + k_ < T:
+                    visit[t + k_] += visit[t] * np.exp(log_trans[t, k_]) / (1 - p_stay[t])
+        D = np.maximum(visit / (1 - p_stay) - 1.0, 0.0)
+        D[-1] = 0.0
     quad_dt = quad_dt or dt
     V = np.array(rm.vertices)
     n = len(V)
@@ -102,7 +112,7 @@ def reference_graph(rm, step_nll, log_trans, dt, vmax, q_start, quad_dt=None, fl
             for k_ in (1, 2):
                 if t + k_ < T:
                     stay = 0.0
-                    if dwell == "expected":  # leaving t (D_t intervals), skipping j (1 + D_j)
+                    if dwell != "interval":  # leaving t (D_t intervals), skipping j (1 + D_j)
                         stay = sum(((j > t) + D[j]) * lq[j] - (D[j] * log_trans[j, 0] if D[j] > 0 else 0.0)
                                    for j in range(t, t + k_))
                     G.add_edge((v, t), (v, t + k_), weight=-log_trans[t, k_] + lq[t + k_] + stay)
@@ -140,7 +150,7 @@ def assert_path_valid(res, rm):
 
 
 # ---------------------------------------------------------------- tests
-@pytest.mark.parametrize("dwell", ["interval", "expected"])
+@pytest.mark.parametrize("dwell", ["interval", "expected", "occupancy"])
 @pytest.mark.parametrize("edge_checks", ["path", "expand"])
 @pytest.mark.parametrize("heuristic", [True, False])
 def test_lazy_search_matches_dijkstra_on_the_full_product_graph(toy, heuristic, edge_checks, dwell):
@@ -207,7 +217,7 @@ def test_per_step_floor_matches_dijkstra(toy, edge_checks):
         make_planner(toy, means, nll_floor=(0.0, 1.0))
 
 
-@pytest.mark.parametrize("dwell", ["interval", "expected"])
+@pytest.mark.parametrize("dwell", ["interval", "expected", "occupancy"])
 @pytest.mark.parametrize("t_start", [0, 3])
 def test_heuristic_is_admissible_and_consistent(toy, t_start, dwell):
     means = arc_means(T2)
@@ -363,7 +373,7 @@ def test_roadmap_growth_between_plans(toy):
     assert before.ok and after.cost == pytest.approx(ref, rel=1e-9)  # the floor may move: no order
 
 
-@pytest.mark.parametrize("dwell", ["interval", "expected"])
+@pytest.mark.parametrize("dwell", ["interval", "expected", "occupancy"])
 @pytest.mark.parametrize("seed", range(6))
 def test_random_problems_match_reference(seed, dwell):
     """Random roadmaps, horizons, forbidden transitions (stays too), start steps and goals; both
