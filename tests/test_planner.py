@@ -51,6 +51,20 @@ def toy():
 
 
 # ---------------------------------------------------------------- independent reference
+def occupancy_intervals(log_trans):
+    """(T,) mean sampling intervals per run in each step: P(visit t) / (1 - p(t|t)), with the
+    visit probabilities by forward recursion over offsets (0, 1, 2) (not lfd.timing's passage times)."""
+    T = log_trans.shape[0]
+    p_stay = np.minimum(np.exp(log_trans[:, 0]), 0.999)
+    visit = np.zeros(T)
+    visit[0] = 1.0
+    for t in range(T - 1):
+        for k_ in (1, 2):
+            if t + k_ < T:
+                visit[t + k_] += visit[t] * np.exp(log_trans[t, k_]) / (1 - p_stay[t])
+    return visit / (1 - p_stay)
+
+
 def reference_graph(rm, step_nll, log_trans, dt, vmax, q_start, quad_dt=None, floor=None,
                     q_goal=None, seg=segment_hits_box, dwell="interval"):
     """The fully evaluated, eagerly collision-checked product graph, nodes ((v | "s" | "g"), t).
@@ -62,14 +76,8 @@ def reference_graph(rm, step_nll, log_trans, dt, vmax, q_start, quad_dt=None, fl
     T = log_trans.shape[0]
     p_stay = np.minimum(np.exp(log_trans[:, 0]), 0.999)
     D = p_stay / (1 - p_stay) if dwell == "expected" else np.zeros(T)
-    if dwell == "occupancy":  # intervals per run: P(visit t) / (1 - p(t|t)), by forward recursion
-        visit = np.zeros(T)
-        visit[0] = 1.0
-        for t in range(T - 1):
-            for k_ in (1, 2):
-                if t + k_ < T:
-                    visit[t + k_] += visit[t] * np.exp(log_trans[t, k_]) / (1 - p_stay[t])
-        D = np.maximum(visit / (1 - p_stay) - 1.0, 0.0)
+    if dwell == "occupancy":
+        D = np.maximum(occupancy_intervals(log_trans) - 1.0, 0.0)
         D[-1] = 0.0
     quad_dt = quad_dt or dt
     V = np.array(rm.vertices)
@@ -419,15 +427,17 @@ def test_path_checking_finds_the_same_plan_with_fewer_segment_checks():
     assert counts["path"] < 0.5 * counts["expand"]
 
 
-def test_expected_dwell_weighs_steps_by_their_stay(toy):
-    """With a sticky step (p(t|t) = 0.9: 9 more intervals expected) the expected dwell moves the
-    plan to a better configuration for that step, where one interval per step holds on."""
+@pytest.mark.parametrize("weighed", ["expected", "occupancy"])
+def test_dwell_weighs_steps_by_their_stay(toy, weighed):
+    """With a sticky step (p(t|t) = 0.9: 9 more intervals expected, and most runs enter it) the
+    expected and the occupancy dwell move the plan to a better configuration for that step, where
+    one interval per step holds on."""
     means = arc_means(T2)
     lt = log_trans_table(T2)
     lt[4] = np.log([0.9, 0.08, 0.02])
     q0 = np.array([-0.7, 0.05])
     err = {}
-    for dwell in ("interval", "expected"):
+    for dwell in ("interval", weighed):
         p = ClosedLoopPlanner(toy, gaussian_factory(), lt, DT, VMAX2,
                               settings=PlannerSettings(cost=CostSettings(dwell=dwell)))
         p.update_landmarks(means)
@@ -439,7 +449,23 @@ def test_expected_dwell_weighs_steps_by_their_stay(toy):
         err[dwell] = float(np.linalg.norm(q4 - means[4]))
         assert res.cost == pytest.approx(reference_cost(toy, gaussian_factory()(means), lt, DT, VMAX2, q0, 0,
                                                         dwell=dwell), rel=1e-9)
-    assert err["expected"] < 0.5 * err["interval"], err
+    assert err[weighed] < 0.5 * err["interval"], err
+
+
+def test_occupancy_dwell_weighs_a_rarely_entered_step_by_its_share(toy):
+    """A sticky step that most runs skip (one demonstration stayed in it): the expected dwell
+    charges its full stay, the occupancy dwell only the share of runs that enter it, which is
+    the time the executor holds it (lfd.timing.step_clock)."""
+    lt = log_trans_table(T2)
+    lt[2] = np.log([0.3, 0.69, 0.01])   # step 3 always entered,
+    lt[3] = np.log([0.3, 0.05, 0.65])   # step 4 entered from it 1 time in 14,
+    lt[4] = np.log([0.95, 0.03, 0.02])  # and stayed in for 20 intervals
+    D = {d: SpatiotemporalCosts(toy, lt, DT, VMAX2, settings=CostSettings(dwell=d)).dwell
+         for d in ("expected", "occupancy")}
+    occ = occupancy_intervals(lt)
+    assert D["expected"][4] == pytest.approx(19.0)
+    assert occ[4] < 2.0 and D["occupancy"][4] == pytest.approx(max(occ[4] - 1.0, 0.0), abs=1e-9)
+    assert D["occupancy"][:-1] == pytest.approx(np.maximum(occ[:-1] - 1.0, 0.0), abs=1e-9)
 
 
 def test_bad_dwell_option():
