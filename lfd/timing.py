@@ -84,8 +84,8 @@ def profile_at(a: float, profile: str = "min-jerk") -> tuple[float, float]:
 
 
 def plan_segments(configurations: np.ndarray, time_steps: np.ndarray, vmax: np.ndarray, dt: float,
-                  speed: float, clock: np.ndarray | None = None, accel: float | None = None
-                  ) -> list[tuple[np.ndarray, np.ndarray, float, int]]:
+                  speed: float, clock: np.ndarray | None = None, accel: float | None = None,
+                  elapsed: float = 0.0) -> list[tuple[np.ndarray, np.ndarray, float, int]]:
     """Timed segments ``(q_from, q_to, duration_s, time_step)`` of a plan.
 
     configurations : (N, d) the plan's waypoints; time_steps : (N,) its task time steps.
@@ -97,10 +97,11 @@ def plan_segments(configurations: np.ndarray, time_steps: np.ndarray, vmax: np.n
     within ``speed vmax_j`` and ``accel`` for every joint. A time-step transition ``t0 -> t1`` (q
     constant) dwells at least one sampling interval ``dt``; with ``clock (T,)`` (``step_clock``)
     it dwells until the robot has been in step ``t0`` for ``clock[t1] - clock[t0]`` seconds,
-    motion included. ``time_step`` is the task time step during the segment.
+    motion included; ``elapsed`` is the time already spent in the first step (a plan made
+    mid-step, after a re-plan). ``time_step`` is the task time step during the segment.
     """
     segs = []
-    spent = 0.0
+    spent = float(elapsed)
     for i in range(len(configurations) - 1):
         q0, q1 = configurations[i], configurations[i + 1]
         t0, t1 = int(time_steps[i]), int(time_steps[i + 1])

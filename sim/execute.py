@@ -184,8 +184,11 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
     sense_every = max(1, int(round(s.sense_period / L.SIM_DT)))
     moved = scenario is None or scenario.bowl_after is None
     step, t_now, seg_i, seg_t = 0, 0, 0, 0.0
+    entered = 0  # sim step at which the current time step began
     while seg_i < len(segs):
         q0, q1, dur, t_seg = segs[seg_i]
+        if t_seg != t_now:
+            entered = step
         t_now = t_seg
         seg_t += L.SIM_DT
         a = min(1.0, seg_t / dur) if dur > 0 else 1.0
@@ -224,7 +227,8 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         result.edges_evaluated.append(res.n_edges_evaluated)
         planned_at = now
         if res.ok:
-            segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed, clock, accel)
+            segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed, clock, accel,
+                                 elapsed=(step - entered) * L.SIM_DT)
             seg_i, seg_t = 0, 0.0
     settle = int(s.settle_s / L.SIM_DT)
     for k in range(settle):
