@@ -31,7 +31,7 @@ _MJ_PEAK_V, _MJ_PEAK_A = 1.875, 10.0 / math.sqrt(3.0)
 _MIN_LEAVE = 1e-3  # smallest probability of leaving a step (caps a step's expected stay at 1000 dt)
 
 
-def _stay_index(log_trans: np.ndarray, offsets) -> tuple[np.ndarray, list[int]]:
+def _checked(log_trans: np.ndarray, offsets) -> tuple[np.ndarray, list[int]]:
     offsets = [int(o) for o in offsets]
     log_trans = np.asarray(log_trans, dtype=float)
     if log_trans.ndim != 2 or log_trans.shape[1] != len(offsets):
@@ -47,7 +47,7 @@ def expected_sojourn(log_trans: np.ndarray, offsets, dt: float) -> np.ndarray:
 
     ``log_trans (T, K)``: ``log p(t + offsets[k] | t)``. Without offset 0 every step lasts ``dt``.
     """
-    P, offsets = _stay_index(log_trans, offsets)
+    P, offsets = _checked(log_trans, offsets)
     if 0 not in offsets:
         return np.full(len(P), float(dt))
     return dt / np.clip(1.0 - P[:, offsets.index(0)], _MIN_LEAVE, 1.0)
@@ -60,9 +60,11 @@ def step_clock(log_trans: np.ndarray, offsets, dt: float) -> np.ndarray:
     First passage into ``{>= t}``: ``h(s) = dt + sum_k p(s + o_k | s) h(s + o_k)`` for ``s < t``
     with ``h = 0`` from ``t`` on (one sample of ``dt`` per visit, self-transitions included, so a
     step the chain usually skips adds little and one it always visits adds its full sojourn).
-    ``clock[t + 1] - clock[t]`` equals ``expected_sojourn[t]`` when no transition skips a step.
+    ``clock[t + 1] - clock[t]`` is the chain's mean time in step t per run, runs that skip it
+    included (``lfd.stcost``'s occupancy dwell); it equals ``expected_sojourn[t]`` when no
+    transition skips a step.
     """
-    P, offsets = _stay_index(log_trans, offsets)
+    P, offsets = _checked(log_trans, offsets)
     T = len(P)
     stay = P[:, offsets.index(0)] if 0 in offsets else np.zeros(T)
     moves = [(k, o) for k, o in enumerate(offsets) if o > 0]
