@@ -169,6 +169,18 @@ def summarize(runs: list[dict], variant: Variant, learning_time_s: float) -> dic
     }
 
 
+def _strict_json(x):
+    """``x`` with every NaN or infinite float as None: ``results.json`` is strict JSON (``null``
+    where nothing was measured, e.g. no re-plans), readable by jq and JavaScript."""
+    if isinstance(x, dict):
+        return {k: _strict_json(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_strict_json(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
 def _ms(stats: dict | None) -> str:
     """The median of ``{median, p95}`` in whole ms, '-' when missing or NaN."""
     x = (stats or {}).get("median", math.nan)
@@ -258,7 +270,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
                "roadmap_size": settings.roadmap_size, "dwell": settings.dwell, "variants": results,
                "scenario_set": [sc.to_dict() for sc in scenarios]}
     tmp = out_dir / "results.json.tmp"
-    tmp.write_text(json.dumps(payload, indent=2) + "\n")
+    tmp.write_text(json.dumps(_strict_json(payload), indent=2, allow_nan=False) + "\n")
     tmp.replace(out_dir / "results.json")
     return payload
 

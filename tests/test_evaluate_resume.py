@@ -79,8 +79,12 @@ def _logged(out: Path) -> list[tuple[str, int]]:
     return pairs
 
 
+def _no_constant(name):
+    raise ValueError(f"results.json is not strict JSON: {name}")
+
+
 def _check_results(out: Path, payload: dict) -> None:
-    on_disk = json.loads((out / "results.json").read_text())
+    on_disk = json.loads((out / "results.json").read_text(), parse_constant=_no_constant)
     assert on_disk["variants"].keys() == payload["variants"].keys() == set(VARIANTS)
     seeds = sorted(s for _, s in _all_pairs()[:N])
     for name in VARIANTS:
