@@ -40,8 +40,8 @@ the model's steps asked for 100-105 degrees (the pitcher needs ~100 to empty).
 Dwell. A time edge stands for one sampling interval, so a path that holds a configuration
 through a step pays that step's cost once, while a roadmap edge pays for every interval it
 takes; the paper's most probable path therefore runs through the task's steps as fast as it
-can. An executor that holds each step for the demonstrations' expected time in it
-(``sim.execute``: ``dt / (1 - p(t|t))``) then spends most of the task at configurations the
+can. An executor that holds each step for the demonstrations' time in it (``sim.execute``,
+before ``lfd.timing.step_clock``: ``dt / (1 - p(t|t))``) then spends most of the task at configurations the
 cost barely weighed: on the 48-step pour, plans held one 94-degree posture through every
 pouring step, the cheapest to reach, where the steps asked for 100-106 degrees. With
 ``dwell="expected"`` a time edge leaving step t at ``q`` also charges the step's expected
@@ -56,8 +56,8 @@ edge. Not the default: on the 48-step pour it fixed partial pours but its plans 
 pouring postures and some spill beside the bowl (measurements: README, *Results*).
 With ``dwell="occupancy"``, ``D_t = occ_t / dt - 1`` intervals (at least 0), where
 ``occ_t = clock[t + 1] - clock[t]`` is the learned chain's mean time in step t per run, skipped
-runs included (``lfd.timing.step_clock``): exactly how long ``sim.execute`` holds a configuration
-in that step. Unlike the expected stay, a step that most demonstrations passed through at once
+runs included (``lfd.timing.step_clock``): the time ``sim.execute`` aims to spend in that step
+(less motion, at least one interval per transition). Unlike the expected stay, a step that most demonstrations passed through at once
 and one stayed in long weighs only its share of the demonstrated time.
 
 A* heuristic: ``lfd.stheuristic``, the cost-to-go of a relaxed problem (roadmap edges charged

@@ -10,7 +10,7 @@ backwards over t, vectorized over all vertices:
 
 * ``G(v, T-1) = 0``;
 * ``term(v, t) = min_k [-log p(t+k|t) + ell(v, t+k) + skip_k(v, t) + G(v, t+k)] + D_t ell(v, t) + s_t``
-  (advance time at v first). Only with ``lfd.stcost``'s expected dwell: ``D_t ell(v, t) + s_t``
+  (advance time at v first). Only with ``lfd.stcost``'s expected or occupancy dwell: ``D_t ell(v, t) + s_t``
   is the stay in step t, ``skip_k(v, t) = sum_j [(1 + D_j) ell(v, j) + s_j]`` over the steps
   ``t < j < t + k`` a time edge skips; without it both are zero;
 * ``G_0(v, t) = h(t)`` (the vertex-independent bound below), then ``sweeps`` times
@@ -78,7 +78,7 @@ def relaxed_cost_to_go(ell: np.ndarray, trans: np.ndarray, offsets, dt: float, s
     t_min : steps before it (that a search starting at t_min never reaches) get ``G = h``,
         which keeps G consistent everywhere.
     dwell : ``(D (T,), s (T,))``, the charge ``D_t ell(v, t) + s_t`` of a time edge leaving step
-        t at v (``lfd.stcost``'s expected dwell); None = none.
+        t at v (``lfd.stcost``'s expected or occupancy dwell); None = none.
     """
     N, T = ell.shape
     h = time_only_bound(trans, ell.min(axis=0), offsets, dwell)

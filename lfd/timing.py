@@ -33,6 +33,8 @@ _MIN_LEAVE = 1e-3  # smallest probability of leaving a step (caps a step's expec
 
 def _checked(log_trans: np.ndarray, offsets) -> tuple[np.ndarray, list[int]]:
     offsets = [int(o) for o in offsets]
+    if not offsets:
+        raise ValueError("offsets must not be empty")
     log_trans = np.asarray(log_trans, dtype=float)
     if log_trans.ndim != 2 or log_trans.shape[1] != len(offsets):
         raise ValueError(f"log_trans must have shape (T, {len(offsets)}) for offsets {offsets}, "

@@ -101,9 +101,9 @@ def test_closed_pipe_ends_quietly(results, cid):
     assert r.returncode == EXIT_BROKEN_PIPE
 
 
-def test_plan_dwell_choices_are_the_librarys():
-    """plan.py lists ``--dwell`` without importing torch; every library option parses."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+def test_plan_dwell_choices_are_the_librarys(monkeypatch):
+    """plan.py lists ``--dwell`` itself (its parser imports nothing heavy); every library option parses."""
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1]))
     import plan
     from lfd.stcost import DWELLS
     for choice in DWELLS:

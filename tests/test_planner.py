@@ -475,13 +475,16 @@ def test_bad_dwell_option():
         CostSettings(trans_scale=0.0)
 
 
-def test_expected_dwell_reads_p_through_the_scale(toy):
+@pytest.mark.parametrize("dwell", ["expected", "occupancy"])
+def test_dwell_reads_p_through_the_scale(toy, dwell):
     """TaskPlanner hands the costs 2 log p (Eq. 3 units) with trans_scale=2: the dwell must come
-    out as p/(1-p) of the real p, as with log p and scale 1."""
+    out of the real p (p/(1-p), or the occupancy less one), as with log p and scale 1."""
     lt = log_trans_table(T2, p=(0.8, 0.15, 0.05))
-    one = SpatiotemporalCosts(toy, lt, DT, VMAX2, settings=CostSettings(dwell="expected"))
-    two = SpatiotemporalCosts(toy, 2 * lt, DT, VMAX2, settings=CostSettings(dwell="expected", trans_scale=2.0))
-    expected = np.r_[np.full(T2 - 1, 0.8 / 0.2), 0.0]
+    one = SpatiotemporalCosts(toy, lt, DT, VMAX2, settings=CostSettings(dwell=dwell))
+    two = SpatiotemporalCosts(toy, 2 * lt, DT, VMAX2, settings=CostSettings(dwell=dwell, trans_scale=2.0))
+    expected = (np.full(T2, 0.8 / 0.2) if dwell == "expected"
+                else np.maximum(occupancy_intervals(lt) - 1.0, 0.0))
+    expected[-1] = 0.0
     np.testing.assert_allclose(one.dwell, expected, rtol=1e-12)
     np.testing.assert_allclose(two.dwell, expected, rtol=1e-12)
     np.testing.assert_allclose(two.stay_cost, 2 * one.stay_cost, rtol=1e-12)  # in the units of log_trans

@@ -97,8 +97,8 @@ def test_plan_segments_respect_velocity_limits_and_pace():
     assert move1[2] == pytest.approx(0.6 / 0.75) and move1[3] == 1
     no_pace = plan_segments(Q, steps, VMAX, dt=0.1, speed=0.5)
     assert no_pace[1][2] == pytest.approx(0.1)                       # one sampling interval
-    resumed = plan_segments(Q, steps, VMAX, dt=0.1, speed=0.5, clock=clock, elapsed=0.5)
-    assert resumed[1][2] == pytest.approx(0.5 - move0[2])           # a re-plan made 0.5 s into step 0
+    resumed = plan_segments(Q, steps, VMAX, dt=0.1, speed=0.5, clock=clock, elapsed=0.3)
+    assert resumed[1][2] == pytest.approx(0.7 - move0[2])           # a re-plan made 0.3 s into step 0
     late = plan_segments(Q, steps, VMAX, dt=0.1, speed=0.5, clock=clock, elapsed=5.0)
     assert late[1][2] == pytest.approx(0.1)                          # overdue: one interval
 
