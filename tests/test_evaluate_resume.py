@@ -43,7 +43,7 @@ def _row(variant: str, scenario: int, success: bool = True) -> dict:
     """A run as ``run_one`` reports it (the keys ``summarize`` reads)."""
     return {"variant": variant, "scenario": scenario, "success": success, "reason": "fake",
             "contacts": [], "fraction_in_bowl": 1.0 if success else 0.0, "initial_ms": 5.0,
-            "replan_ms": [1.0, 2.0], "wall_s": 0.0, "roadmap_vertices": 10}
+            "replan_ms": [1.0, 2.0], "wall_s": 0.0, "roadmap_vertices": 10, "pace": ev.EXEC_PACE}
 
 
 class FakeRunOne:
@@ -174,6 +174,21 @@ def test_runs_of_another_dwell_setting_are_run_again(tmp_path, models, monkeypat
     assert payload["dwell"] == "expected"
     with pytest.raises(ValueError, match="dwell must be one of"):
         replace(_settings(), dwell="forever")
+
+
+def test_runs_paced_before_the_clock_are_run_again(tmp_path, models, monkeypatch):
+    """Rows logged without ``pace`` were executed with the old per-visited-step timing: redone."""
+    out = tmp_path / "eval"
+    monkeypatch.setattr(ev, "run_one", FakeRunOne())
+    ev.evaluate(_settings(), out, models)
+    log = out / "runs.jsonl"
+    rows = [json.loads(line) for line in log.read_text().splitlines()]
+    rows[0].pop("pace")
+    log.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    again = FakeRunOne()
+    monkeypatch.setattr(ev, "run_one", again)
+    ev.evaluate(_settings(), out, models)
+    assert again.calls == [(rows[0]["variant"], rows[0]["scenario"])]
 
 
 def test_summary_reaction_times_only_from_timed_runs():
