@@ -79,13 +79,12 @@ import torch
 
 from lfd.roadmap import Roadmap
 from lfd.stheuristic import dwell_charge, relaxed_cost_to_go, source_bound
-from lfd.timing import step_clock
+from lfd.timing import expected_sojourn, step_clock
 
 __all__ = ["CostSettings", "CostError", "SpatiotemporalCosts", "EDGE_CHECKS", "DWELLS"]
 
 EDGE_CHECKS = ("path", "expand")
 DWELLS = ("interval", "expected", "occupancy")
-MAX_STAY = 0.999  # p(t | t) above this counts as this in the expected dwell (at most 999 intervals)
 
 
 class CostError(ValueError):
@@ -189,13 +188,14 @@ class SpatiotemporalCosts:
         # dwell[t]: further sampling intervals charged when step t is left by a time edge, each at
         # -log p(t|t) (stay_cost[t] in all) plus the step cost of the configuration it is left from
         self.dwell = np.zeros(self.T)
-        if settings.dwell == "expected":
-            p = np.minimum(np.exp(-trans[:, 0] / settings.trans_scale), MAX_STAY)  # 0: no staying
-            self.dwell = p / (1.0 - p)
-        elif settings.dwell == "occupancy":
+        if settings.dwell != "interval":
             order = np.argsort(offsets)
-            clock = step_clock(lt[:, order] / settings.trans_scale, sorted(offsets), 1.0)  # (T,) intervals
-            self.dwell = np.maximum(np.diff(clock, append=clock[-1]) - 1.0, 0.0)
+            chain = (lt[:, order] / settings.trans_scale, sorted(offsets), 1.0)  # in sampling intervals
+            if settings.dwell == "expected":  # p/(1-p), p = p(t|t) at most 0.999
+                self.dwell = expected_sojourn(*chain) - 1.0
+            else:
+                clock = step_clock(*chain)  # (T,)
+                self.dwell = np.maximum(np.diff(clock, append=clock[-1]) - 1.0, 0.0)
         self.dwell[-1] = 0.0  # the last step is never left
         stay = np.where(np.isfinite(trans[:, 0]), trans[:, 0], 0.0)
         self.stay_cost = np.where(self.dwell > 0, self.dwell * stay, 0.0)  # (T,)
