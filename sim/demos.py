@@ -1,7 +1,10 @@
 """The kinesthetic demonstrator: synthetic human-like demonstrations of the two tasks (Sec. VI).
 
-Per demonstration: the bowl is placed uniformly at random in the 30-inch square of
-``sim.layout`` and 4 distractor landmarks at random in it (powder: markers up to 0.3 m above
+Per demonstration: the bowl is placed at random in the 30-inch square of ``sim.layout``
+(``placement="stratified"``, the default, is a Latin hypercube over the set: each of the ``n``
+equal strips of the square in x, and each in y, holds exactly one bowl, so that 11
+demonstrations cannot by chance leave out the bowls near the robot; ``"uniform"`` draws each
+bowl independently) and 4 distractor landmarks at random in it (powder: markers up to 0.3 m above
 the table; pour: scissors, spoon, vase, paper towels lifted up to 10 inches), each drawn again
 while the demonstrated motion would hit it (a person does not demonstrate through a vase); a
 hidden task point
@@ -13,10 +16,10 @@ sampling interval, no configuration collides (self, table, containers, distracto
 replay under physics (position control, particles in the tool) ends with >= 90 % of the
 particles in the bowl and no contact of the arm or tool with anything but particles; otherwise
 a new path (posture, timing, distractors) is drawn for the *same* bowl position, so that the
-bowls stay uniform over the whole square.
+bowls keep their placement over the whole square.
 
 Command line: ``python -m sim.demos --task powder|pour [--n 11] [--seed S]
-[--task-point X Y Z] --out DIR``.
+[--placement stratified|uniform] [--task-point X Y Z] --out DIR``.
 """
 
 from __future__ import annotations
@@ -40,13 +43,32 @@ from lfd.tasks import task_from_name
 from sim import layout as L
 from sim.demo_paths import TASK_POINTS, DemoPath, bowl_frame_path, draw_path
 
-__all__ = ["generate", "DemoAttempt", "track_path", "replay", "plot_demos", "main", "MIN_IN_BOWL"]
+__all__ = ["generate", "bowl_positions", "DemoAttempt", "track_path", "replay", "plot_demos", "main",
+           "MIN_IN_BOWL", "PLACEMENTS"]
 
 MIN_IN_BOWL = 0.9
 MAX_ATTEMPTS_PER_DEMO = 40
 PATH_IK = IKConfig(max_iters=40, min_iters=1, pos_tol=2e-4, rot_tol=2e-3, max_step=0.2)
 LIFT_MAX = 0.254  # 10 inches
 DISTRACTOR_TRIES = 30
+PLACEMENTS = ("stratified", "uniform")
+
+
+def bowl_positions(n: int, rng: np.random.Generator, placement: str = "stratified") -> np.ndarray:
+    """``n`` bowl positions (n, 2), metres in the world xy plane, inside the 30-inch square.
+
+    ``"uniform"``: independent uniform draws. ``"stratified"``: a Latin hypercube, each point
+    still uniform over the square, but each of the ``n`` equal strips in x (and in y) holds
+    exactly one point, in a random order.
+    """
+    if placement not in PLACEMENTS:
+        raise ValueError(f"placement must be one of {PLACEMENTS}, got {placement!r}")
+    n = int(n)
+    if placement == "uniform":
+        u = rng.uniform(0.0, 1.0, (n, 2))
+    else:
+        u = np.stack([(rng.permutation(n) + rng.uniform(0.0, 1.0, n)) / n for _ in range(2)], axis=1)
+    return np.asarray(L.SQUARE_CENTER_XY) + (2.0 * u - 1.0) * L.SQUARE_HALF  # (n, 2)
 
 
 @dataclass(frozen=True)
@@ -219,18 +241,19 @@ def _draw_one(world, kin, fns, task, bowl_xy, tool_point, dt, rng) -> DemoAttemp
 
 
 def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, progress: bool = True,
-             keep_attempts: list | None = None) -> list[Path]:
+             keep_attempts: list | None = None, placement: str = "stratified") -> list[Path]:
     """Generate ``n`` demonstrations of ``task`` into ``out_dir``; returns the ``.npz`` paths.
 
     Writes ``demo_000.npz`` ... (``lfd.demos`` format), ``task.json`` and ``ground_truth.json``
     (``tool_point``, ``bowl_landmark``, ``task``, plus the bowl positions and durations).
     ``task_point``: (3,) metres in the gripper frame, default ``TASK_POINTS[task]``.
     ``keep_attempts``: a list that receives the kept ``DemoAttempt`` objects (for tests/plots).
+    ``placement``: how the bowls are spread over the square (``bowl_positions``).
 
     Raises
     ------
     ValueError
-        unknown task, ``n < 1``, a task point that is not 3 finite numbers.
+        unknown task or placement, ``n < 1``, a task point that is not 3 finite numbers.
     RuntimeError
         when a demonstration cannot be drawn in ``MAX_ATTEMPTS_PER_DEMO`` attempts.
     """
@@ -245,9 +268,14 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
         raise ValueError(f"task_point must be 3 finite numbers (metres, gripper frame), got {task_point!r}")
     if np.linalg.norm(tool_point) > 0.5:
         raise ValueError(f"task_point {tool_point.tolist()} is more than 0.5 m from the gripper")
+    if placement not in PLACEMENTS:
+        raise ValueError(f"placement must be one of {PLACEMENTS}, got {placement!r}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
+    # the bowls are drawn up front and each is kept through its attempts: redrawing one after a
+    # failure would bias the bowl positions towards the easy part of the square
+    all_bowls = bowl_positions(n, rng, placement)  # (n, 2)
     kin = KinematicModel.from_spec(BAXTER_LEFT, dtype=torch.float64)
     torch.set_num_threads(1)
     paths, bowls, durations, attempts_used = [], [], [], []
@@ -257,9 +285,7 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
                "all": make_collision_fns(world, obstacles=True)}
         for i in range(int(n)):
             t0 = time.time()
-            # the bowl is drawn once per demonstration and kept through the attempts: redrawing
-            # it after a failure would bias the bowl positions towards the easy part of the square
-            bowl_xy = np.asarray(L.SQUARE_CENTER_XY) + rng.uniform(-L.SQUARE_HALF, L.SQUARE_HALF, 2)
+            bowl_xy = all_bowls[i]
             for attempt in range(1, MAX_ATTEMPTS_PER_DEMO + 1):
                 a = _draw_one(world, kin, fns, task, bowl_xy, tool_point, spec.dt, rng)
                 if not a.failure:
@@ -285,7 +311,8 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
                       f"attempt {attempt}, {time.time() - t0:.1f} s", flush=True)
     spec.save(out_dir / "task.json")
     truth = {"tool_point": tool_point.tolist(), "bowl_landmark": "bowl", "task": task,
-             "bowl_xy": bowls, "durations": durations, "attempts": attempts_used, "seed": int(seed)}
+             "bowl_xy": bowls, "durations": durations, "attempts": attempts_used, "seed": int(seed),
+             "placement": placement}
     (out_dir / "ground_truth.json").write_text(json.dumps(truth, indent=2) + "\n")
     if progress:
         print(f"{n} {task} demonstrations in {out_dir} ({time.time() - t_all:.0f} s)", flush=True)
@@ -328,6 +355,8 @@ def main(argv=None) -> int:
     ap.add_argument("--task", required=True, help="powder or pour")
     ap.add_argument("--n", type=int, default=11, help="number of demonstrations (default 11)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--placement", choices=PLACEMENTS, default="stratified",
+                    help="bowl positions over the square: a Latin hypercube (default) or independent uniform draws")
     ap.add_argument("--task-point", type=float, nargs=3, metavar=("X", "Y", "Z"),
                     help="hidden tool point, metres in the gripper frame (default: the task's)")
     ap.add_argument("--out", required=True, help="output folder")
@@ -345,7 +374,7 @@ def main(argv=None) -> int:
     kept = []
     try:
         generate(args.task, out, n=args.n, seed=args.seed, task_point=args.task_point, progress=not args.quiet,
-                 keep_attempts=kept)
+                 keep_attempts=kept, placement=args.placement)
     except RuntimeError as e:  # not bad input: the demonstrator could not do the task here
         print(f"python -m sim.demos: {e}", file=sys.stderr)
         return 1

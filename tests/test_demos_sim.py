@@ -12,7 +12,7 @@ import torch
 from lfd.kinematics import KinematicModel
 from sim import layout as L
 from sim.demo_paths import TASK_POINTS
-from sim.demos import MIN_IN_BOWL, generate, replay
+from sim.demos import MIN_IN_BOWL, bowl_positions, generate, replay
 
 ROOT = Path(__file__).resolve().parent.parent
 OTHER_POINT = (0.0, 0.02, 0.12)  # on the spoon's handle, not the default
@@ -135,6 +135,38 @@ def test_bowl_is_kept_through_rejected_attempts(tmp_path, monkeypatch):
     D.generate("powder", tmp_path, n=2, seed=0, progress=False)
     assert len(seen) == 6
     assert seen[0] == seen[1] == seen[2] and seen[3] == seen[4] == seen[5] and seen[0] != seen[3]
+
+
+@pytest.mark.parametrize("n", [1, 5, 11, 40])
+def test_stratified_bowls_put_one_bowl_in_each_strip(n):
+    """A Latin hypercube: each of the n strips of the square in x, and each in y, holds one bowl."""
+    c, h = np.asarray(L.SQUARE_CENTER_XY), L.SQUARE_HALF
+    for seed in range(20):
+        b = bowl_positions(n, np.random.default_rng(seed), "stratified")
+        assert b.shape == (n, 2)
+        u = (b - c + h) / (2 * h)  # (n, 2) in [0, 1]
+        assert np.all((u >= 0) & (u <= 1))
+        for axis in range(2):
+            assert sorted(np.floor(u[:, axis] * n).astype(int).tolist()) == list(range(n))
+
+
+def test_stratified_bowls_are_uniform_over_the_square():
+    """Each stratified bowl is still uniform over the square (the marginal of a Latin hypercube)."""
+    c, h = np.asarray(L.SQUARE_CENTER_XY), L.SQUARE_HALF
+    rng = np.random.default_rng(0)
+    u = np.concatenate([(bowl_positions(11, rng) - c + h) / (2 * h) for _ in range(2000)])  # (22000, 2)
+    hist = np.histogram2d(u[:, 0], u[:, 1], bins=4, range=[[0, 1], [0, 1]])[0] / len(u)
+    assert np.abs(hist - 1 / 16).max() < 0.006  # ~5 sigma of a multinomial cell at this count
+
+
+def test_uniform_bowls_can_leave_a_strip_empty_and_bad_placement_is_refused():
+    """The reason for stratifying: 11 independent bowls often miss the strip nearest the robot."""
+    c, h = np.asarray(L.SQUARE_CENTER_XY), L.SQUARE_HALF
+    near = [np.any(bowl_positions(11, np.random.default_rng(s), "uniform")[:, 0] < c[0] - h + 2 * h / 11)
+            for s in range(200)]
+    assert 0.5 < np.mean(near) < 0.75  # 1 - (10/11)^11 = 0.65
+    with pytest.raises(ValueError, match="placement must be one of"):
+        bowl_positions(3, np.random.default_rng(0), "grid")
 
 
 def _quadrants(bowls):
