@@ -1,10 +1,10 @@
 """The kinesthetic demonstrator: synthetic human-like demonstrations of the two tasks (Sec. VI).
 
-Per demonstration: the bowl is placed at random in the 30-inch square of ``sim.layout``
-(``placement="stratified"``, the default, is a Latin hypercube over the set: each of the ``n``
-equal strips of the square in x, and each in y, holds exactly one bowl, so that 11
-demonstrations cannot by chance leave out the bowls near the robot; ``"uniform"`` draws each
-bowl independently) and 4 distractor landmarks at random in it (powder: markers up to 0.3 m above
+Per demonstration: the bowl is placed uniformly at random in the 30-inch square of
+``sim.layout`` (``placement="uniform"``, the default; ``"stratified"`` is a Latin hypercube
+over the set: each of the ``n`` equal strips of the square in x, and each in y, holds exactly
+one bowl, so that 11 demonstrations cannot by chance leave out the bowls near the robot) and 4
+distractor landmarks at random in it (powder: markers up to 0.3 m above
 the table; pour: scissors, spoon, vase, paper towels lifted up to 10 inches), each drawn again
 while the demonstrated motion would hit it (a person does not demonstrate through a vase); a
 hidden task point
@@ -19,7 +19,7 @@ a new path (posture, timing, distractors) is drawn for the *same* bowl position,
 bowls keep their placement over the whole square.
 
 Command line: ``python -m sim.demos --task powder|pour [--n 11] [--seed S]
-[--placement stratified|uniform] [--task-point X Y Z] --out DIR``.
+[--placement uniform|stratified] [--task-point X Y Z] --out DIR``.
 """
 
 from __future__ import annotations
@@ -51,10 +51,10 @@ MAX_ATTEMPTS_PER_DEMO = 40
 PATH_IK = IKConfig(max_iters=40, min_iters=1, pos_tol=2e-4, rot_tol=2e-3, max_step=0.2)
 LIFT_MAX = 0.254  # 10 inches
 DISTRACTOR_TRIES = 30
-PLACEMENTS = ("stratified", "uniform")
+PLACEMENTS = ("uniform", "stratified")
 
 
-def bowl_positions(n: int, rng: np.random.Generator, placement: str = "stratified") -> np.ndarray:
+def bowl_positions(n: int, rng: np.random.Generator, placement: str = "uniform") -> np.ndarray:
     """``n`` bowl positions (n, 2), metres in the world xy plane, inside the 30-inch square.
 
     ``"uniform"``: independent uniform draws. ``"stratified"``: a Latin hypercube, each point
@@ -241,7 +241,7 @@ def _draw_one(world, kin, fns, task, bowl_xy, tool_point, dt, rng) -> DemoAttemp
 
 
 def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, progress: bool = True,
-             keep_attempts: list | None = None, placement: str = "stratified") -> list[Path]:
+             keep_attempts: list | None = None, placement: str = "uniform") -> list[Path]:
     """Generate ``n`` demonstrations of ``task`` into ``out_dir``; returns the ``.npz`` paths.
 
     Writes ``demo_000.npz`` ... (``lfd.demos`` format), ``task.json`` and ``ground_truth.json``
@@ -273,9 +273,11 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    # the bowls are drawn up front and each is kept through its attempts: redrawing one after a
-    # failure would bias the bowl positions towards the easy part of the square
-    all_bowls = bowl_positions(n, rng, placement)  # (n, 2)
+    # each bowl is kept through its attempts: redrawing one after a failure would bias the bowl
+    # positions towards the easy part of the square. A stratified set is drawn up front; uniform
+    # bowls are drawn one per demonstration, as before the option existed, so that a seed still
+    # gives the same demonstrations
+    all_bowls = bowl_positions(n, rng, placement) if placement == "stratified" else None  # (n, 2)
     kin = KinematicModel.from_spec(BAXTER_LEFT, dtype=torch.float64)
     torch.set_num_threads(1)
     paths, bowls, durations, attempts_used = [], [], [], []
@@ -285,7 +287,7 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
                "all": make_collision_fns(world, obstacles=True)}
         for i in range(int(n)):
             t0 = time.time()
-            bowl_xy = all_bowls[i]
+            bowl_xy = all_bowls[i] if all_bowls is not None else bowl_positions(1, rng, "uniform")[0]
             for attempt in range(1, MAX_ATTEMPTS_PER_DEMO + 1):
                 a = _draw_one(world, kin, fns, task, bowl_xy, tool_point, spec.dt, rng)
                 if not a.failure:
@@ -355,8 +357,8 @@ def main(argv=None) -> int:
     ap.add_argument("--task", required=True, help="powder or pour")
     ap.add_argument("--n", type=int, default=11, help="number of demonstrations (default 11)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--placement", choices=PLACEMENTS, default="stratified",
-                    help="bowl positions over the square: a Latin hypercube (default) or independent uniform draws")
+    ap.add_argument("--placement", choices=PLACEMENTS, default="uniform",
+                    help="bowl positions over the square: independent uniform draws (default) or a Latin hypercube")
     ap.add_argument("--task-point", type=float, nargs=3, metavar=("X", "Y", "Z"),
                     help="hidden tool point, metres in the gripper frame (default: the task's)")
     ap.add_argument("--out", required=True, help="output folder")

@@ -154,7 +154,7 @@ def test_stratified_bowls_are_uniform_over_the_square():
     """Each stratified bowl is still uniform over the square (the marginal of a Latin hypercube)."""
     c, h = np.asarray(L.SQUARE_CENTER_XY), L.SQUARE_HALF
     rng = np.random.default_rng(0)
-    u = np.concatenate([(bowl_positions(11, rng) - c + h) / (2 * h) for _ in range(2000)])  # (22000, 2)
+    u = np.concatenate([(bowl_positions(11, rng, "stratified") - c + h) / (2 * h) for _ in range(2000)])  # (22000, 2)
     hist = np.histogram2d(u[:, 0], u[:, 1], bins=4, range=[[0, 1], [0, 1]])[0] / len(u)
     assert np.abs(hist - 1 / 16).max() < 0.006  # ~5 sigma of a multinomial cell at this count
 
