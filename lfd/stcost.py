@@ -79,12 +79,11 @@ import torch
 
 from lfd.roadmap import Roadmap
 from lfd.stheuristic import dwell_charge, relaxed_cost_to_go, source_bound
-from lfd.timing import expected_sojourn, step_clock
+from lfd.timing import DWELLS, dwell_intervals
 
 __all__ = ["CostSettings", "CostError", "SpatiotemporalCosts", "EDGE_CHECKS", "DWELLS"]
 
 EDGE_CHECKS = ("path", "expand")
-DWELLS = ("interval", "expected", "occupancy")
 
 
 class CostError(ValueError):
@@ -187,16 +186,8 @@ class SpatiotemporalCosts:
         self.trans = trans  # trans[:, 0] = -log p(t | t): the cost rate of roadmap edges
         # dwell[t]: further sampling intervals charged when step t is left by a time edge, each at
         # -log p(t|t) (stay_cost[t] in all) plus the step cost of the configuration it is left from
-        self.dwell = np.zeros(self.T)
-        if settings.dwell != "interval":
-            order = np.argsort(offsets)
-            chain = (lt[:, order] / settings.trans_scale, sorted(offsets), 1.0)  # in sampling intervals
-            if settings.dwell == "expected":  # p/(1-p), p = p(t|t) at most 0.999
-                self.dwell = expected_sojourn(*chain) - 1.0
-            else:
-                clock = step_clock(*chain)  # (T,)
-                self.dwell = np.maximum(np.diff(clock, append=clock[-1]) - 1.0, 0.0)
-        self.dwell[-1] = 0.0  # the last step is never left
+        order = np.argsort(offsets)
+        self.dwell = dwell_intervals(settings.dwell, lt[:, order] / settings.trans_scale, sorted(offsets))  # (T,)
         stay = np.where(np.isfinite(trans[:, 0]), trans[:, 0], 0.0)
         self.stay_cost = np.where(self.dwell > 0, self.dwell * stay, 0.0)  # (T,)
         # what the heuristic needs to charge the same (None: one interval per time edge)
