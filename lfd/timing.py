@@ -15,6 +15,9 @@ permitted transition, and the search often takes it because a path with fewer ed
 the time it spends from step ``a`` to step ``b`` is ``clock[b] - clock[a]``, the demonstrations'
 mean. Pouring and dumping need that time: a pitcher tilted for half the demonstrated time
 leaves liquid in it.
+
+The planner's optional dwell weights (``dwell_intervals``, ``DWELLS``) come from the same chain:
+how many sampling intervals a time edge charges for the step it leaves (``lfd.stcost``).
 """
 
 from __future__ import annotations
@@ -87,8 +90,8 @@ def dwell_intervals(dwell: str, log_trans: np.ndarray, offsets) -> np.ndarray:
     ``"interval"``: none (the paper's: a time edge is one interval). ``"expected"``: the rest of
     a visit's expected stay, ``p / (1 - p)`` with ``p = p(t | t)``. ``"occupancy"``: the rest of
     the chain's mean time in the step per run, ``clock[t + 1] - clock[t] - 1`` in intervals (at
-    least 0; ``step_clock``). The last step is never left: 0. Why and how ``lfd.stcost`` charges
-    them: its *Dwell* notes.
+    least 0; ``step_clock``). The last step is never left: 0. ``log_trans (T, K)`` as in
+    ``step_clock``, ``offsets`` increasing. Why and how ``lfd.stcost`` charges them: its *Dwell* notes.
     """
     if dwell not in DWELLS:
         raise ValueError(f"Expected dwell in {DWELLS}, got {dwell!r}")

@@ -1,10 +1,10 @@
 """The kinesthetic demonstrator: synthetic human-like demonstrations of the two tasks (Sec. VI).
 
-Per demonstration: the bowl is placed uniformly at random in the 30-inch square of
-``sim.layout`` (``placement="uniform"``, the default; ``"stratified"`` is a Latin hypercube
-over the set: each of the ``n`` equal strips of the square in x, and each in y, holds exactly
-one bowl, so that 11 demonstrations cannot by chance leave out the bowls near the robot) and 4
-distractor landmarks at random in it (powder: markers up to 0.3 m above
+The bowls are placed at random in the 30-inch square of ``sim.layout``: uniformly, one
+independent draw per demonstration (``placement="uniform"``, the default), or as a Latin
+hypercube over the whole set (``"stratified"``: each of the ``n`` equal strips of the square in
+x, and each in y, holds exactly one bowl, so that 11 demonstrations cannot by chance leave out
+the bowls near the robot). Per demonstration, 4 distractor landmarks at random in it (powder: markers up to 0.3 m above
 the table; pour: scissors, spoon, vase, paper towels lifted up to 10 inches), each drawn again
 while the demonstrated motion would hit it (a person does not demonstrate through a vase); a
 hidden task point
@@ -63,12 +63,11 @@ def bowl_positions(n: int, rng: np.random.Generator, placement: str = "uniform")
     """
     if placement not in PLACEMENTS:
         raise ValueError(f"placement must be one of {PLACEMENTS}, got {placement!r}")
-    n = int(n)
-    if placement == "uniform":
-        u = rng.uniform(0.0, 1.0, (n, 2))
-    else:
-        u = np.stack([(rng.permutation(n) + rng.uniform(0.0, 1.0, n)) / n for _ in range(2)], axis=1)
-    return np.asarray(L.SQUARE_CENTER_XY) + (2.0 * u - 1.0) * L.SQUARE_HALF  # (n, 2)
+    n, c, h = int(n), np.asarray(L.SQUARE_CENTER_XY), L.SQUARE_HALF
+    if placement == "uniform":  # this exact expression: a seed gives the bowls it always gave
+        return c + rng.uniform(-h, h, (n, 2))  # (n, 2)
+    u = np.stack([(rng.permutation(n) + rng.uniform(0.0, 1.0, n)) / n for _ in range(2)], axis=1)  # (n, 2) in [0, 1)
+    return c + (2.0 * u - 1.0) * h
 
 
 @dataclass(frozen=True)

@@ -118,23 +118,36 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, args, msg):
     assert len(lines) == 1 and msg in lines[0]
 
 
-def test_bowl_is_kept_through_rejected_attempts(tmp_path, monkeypatch):
-    """A rejected attempt is redrawn for the same bowl (redrawing the bowl would bias the set)."""
+@pytest.mark.parametrize("placement", ["uniform", "stratified"])
+def test_bowl_is_kept_through_rejected_attempts(tmp_path, monkeypatch, placement):
+    """A rejected attempt is redrawn for the same bowl (redrawing the bowl would bias the set);
+    the bowls are the placement's own, and uniform ones are the draws the demonstrator always made
+    (one ``centre + uniform(-h, h, 2)`` per demonstration, before its attempts)."""
     import sim.demos as D
     from sim.demo_paths import draw_path
 
     seen = []
 
-    def fake(world, kin, fns, task, bowl_xy, tool_point, dt, rng):
+    def fake(world, kin, fns, task, bowl_xy, tool_point, dt, rng):  # draws nothing from rng
         seen.append(tuple(bowl_xy))
-        path = draw_path(task, bowl_xy, np.r_[0.7, 0.8, 0.0, 0.3], dt, rng)
+        path = draw_path(task, bowl_xy, np.r_[0.7, 0.8, 0.0, 0.3], dt, np.random.default_rng(99))
         fail = "test rejection" if len(seen) % 3 else ""
         return D.DemoAttempt(np.tile(L.HOME_Q, (5, 1)), path, {}, fail, 1.0)
 
     monkeypatch.setattr(D, "_draw_one", fake)
-    D.generate("powder", tmp_path, n=2, seed=0, progress=False)
-    assert len(seen) == 6
-    assert seen[0] == seen[1] == seen[2] and seen[3] == seen[4] == seen[5] and seen[0] != seen[3]
+    D.generate("powder", tmp_path, n=3, seed=4, progress=False, placement=placement)
+    assert len(seen) == 9
+    assert all(seen[3 * i] == seen[3 * i + 1] == seen[3 * i + 2] for i in range(3))
+    bowls = np.array(seen[::3])  # (3, 2)
+    rng = np.random.default_rng(4)
+    if placement == "uniform":
+        old = np.array([np.asarray(L.SQUARE_CENTER_XY) + rng.uniform(-L.SQUARE_HALF, L.SQUARE_HALF, 2)
+                        for _ in range(3)])
+        assert np.array_equal(bowls, old)
+    else:
+        assert np.array_equal(bowls, bowl_positions(3, rng, "stratified"))
+    truth = json.loads((tmp_path / "ground_truth.json").read_text())
+    assert truth["placement"] == placement and np.allclose(truth["bowl_xy"], bowls)
 
 
 @pytest.mark.parametrize("n", [1, 5, 11, 40])
@@ -156,7 +169,7 @@ def test_stratified_bowls_are_uniform_over_the_square():
     rng = np.random.default_rng(0)
     u = np.concatenate([(bowl_positions(11, rng, "stratified") - c + h) / (2 * h) for _ in range(2000)])  # (22000, 2)
     hist = np.histogram2d(u[:, 0], u[:, 1], bins=4, range=[[0, 1], [0, 1]])[0] / len(u)
-    assert np.abs(hist - 1 / 16).max() < 0.006  # ~5 sigma of a multinomial cell at this count
+    assert np.abs(hist - 1 / 16).max() < 0.006  # ~3.7 sigma of a multinomial cell at this count
 
 
 def test_uniform_bowls_can_leave_a_strip_empty_and_bad_placement_is_refused():
