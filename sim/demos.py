@@ -4,11 +4,10 @@ The bowls are placed at random in the 30-inch square of ``sim.layout``: uniforml
 independent draw per demonstration (``placement="uniform"``, the default), or as a Latin
 hypercube over the whole set (``"stratified"``: each of the ``n`` equal strips of the square in
 x, and each in y, holds exactly one bowl, so that 11 demonstrations cannot by chance leave out
-the bowls near the robot). Per demonstration, 4 distractor landmarks at random in it (powder: markers up to 0.3 m above
-the table; pour: scissors, spoon, vase, paper towels lifted up to 10 inches), each drawn again
-while the demonstrated motion would hit it (a person does not demonstrate through a vase); a
-hidden task point
-on the tool (``sim.demo_paths.TASK_POINTS`` or ``task_point``) follows a random path relative
+the bowls near the robot). Per demonstration, 4 distractor landmarks at random in the square
+(powder: markers up to 0.3 m above the table; pour: scissors, spoon, vase, paper towels
+lifted up to 10 inches), each drawn again while the demonstrated motion would hit it (a person
+does not demonstrate through a vase); a hidden task point on the tool (``sim.demo_paths.TASK_POINTS`` or ``task_point``) follows a random path relative
 to the bowl (``sim.demo_paths.draw_path``); the arm follows it by IK (``lfd.ik``) seeded from
 the previous sample, with a per-demonstration null-space posture. A demonstration is kept
 only if every sample is within the joint limits, no joint exceeds its URDF velocity over one
