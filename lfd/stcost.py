@@ -41,8 +41,8 @@ Dwell. A time edge stands for one sampling interval, so a path that holds a conf
 through a step pays that step's cost once, while a roadmap edge pays for every interval it
 takes; the paper's most probable path therefore runs through the task's steps as fast as it
 can. An executor that holds each step for the demonstrations' time in it (``sim.execute``,
-before ``lfd.timing.step_clock``: ``dt / (1 - p(t|t))``) then spends most of the task at configurations the
-cost barely weighed: on the 48-step pour, plans held one 94-degree posture through every
+before ``lfd.timing.step_clock``: ``dt / (1 - p(t|t))``) then spends most of the task at
+configurations the cost barely weighed: on the 48-step pour, plans held one 94-degree posture through every
 pouring step, the cheapest to reach, where the steps asked for 100-106 degrees. With
 ``dwell="expected"`` a time edge leaving step t at ``q`` also charges the step's expected
 further stay, ``D_t = p/(1-p)`` intervals (``p = p(t|t)``), each at ``-log p(t|t) + ell(q, t)``:
@@ -57,8 +57,9 @@ pouring postures and some spill beside the bowl (measurements: README, *Results*
 With ``dwell="occupancy"``, ``D_t = occ_t / dt - 1`` intervals (at least 0), where
 ``occ_t = clock[t + 1] - clock[t]`` is the learned chain's mean time in step t per run, skipped
 runs included (``lfd.timing.step_clock``): the time ``sim.execute`` aims to spend in that step
-(less motion, at least one interval per transition). Unlike the expected stay, a step that most demonstrations passed through at once
-and one stayed in long weighs only its share of the demonstrated time.
+(less motion, at least one interval per transition). Unlike the expected stay, a step that
+most demonstrations passed through at once and one stayed in long weighs only its share of the
+demonstrated time. The weights themselves: ``lfd.timing.dwell_intervals``.
 
 A* heuristic: ``lfd.stheuristic``, the cost-to-go of a relaxed problem (roadmap edges charged
 only their self-transition part), a consistent lower bound computed for all vertices at once.
@@ -187,7 +188,8 @@ class SpatiotemporalCosts:
         # dwell[t]: further sampling intervals charged when step t is left by a time edge, each at
         # -log p(t|t) (stay_cost[t] in all) plus the step cost of the configuration it is left from
         order = np.argsort(offsets)
-        self.dwell = dwell_intervals(settings.dwell, lt[:, order] / settings.trans_scale, sorted(offsets))  # (T,)
+        self.dwell = dwell_intervals(settings.dwell, lt[:, order] / settings.trans_scale,  # (T,)
+                                     sorted(offsets))
         stay = np.where(np.isfinite(trans[:, 0]), trans[:, 0], 0.0)
         self.stay_cost = np.where(self.dwell > 0, self.dwell * stay, 0.0)  # (T,)
         # what the heuristic needs to charge the same (None: one interval per time edge)

@@ -26,7 +26,8 @@ import math
 
 import numpy as np
 
-__all__ = ["PROFILES", "DWELLS", "expected_sojourn", "step_clock", "dwell_intervals", "profile_at", "plan_segments"]
+__all__ = ["PROFILES", "DWELLS", "expected_sojourn", "step_clock", "dwell_intervals", "profile_at",
+           "plan_segments"]
 
 PROFILES = ("min-jerk", "linear")
 DWELLS = ("interval", "expected", "occupancy")
@@ -95,13 +96,13 @@ def dwell_intervals(dwell: str, log_trans: np.ndarray, offsets) -> np.ndarray:
     """
     if dwell not in DWELLS:
         raise ValueError(f"Expected dwell in {DWELLS}, got {dwell!r}")
-    P, _ = _checked(log_trans, offsets)
-    out = np.zeros(len(P))
     if dwell == "expected":
         out = expected_sojourn(log_trans, offsets, 1.0) - 1.0
     elif dwell == "occupancy":
         clock = step_clock(log_trans, offsets, 1.0)  # (T,) in intervals
         out = np.maximum(np.diff(clock, append=clock[-1]) - 1.0, 0.0)
+    else:
+        out = np.zeros(len(_checked(log_trans, offsets)[0]))
     out[-1] = 0.0
     return out
 
