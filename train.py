@@ -36,6 +36,9 @@ def parse_args(argv=None):
     p.add_argument("--env", default="learn", choices=("learn", "bowl"))
     p.add_argument("--restarts", type=int, default=None)
     p.add_argument("--time-steps", type=int, default=None)
+    p.add_argument("--subsample", type=int, default=None, metavar="K",
+                   help="learn from every K-th sample (the model's dt becomes K times the demonstrations'; "
+                        "default: lfd.learn.FitConfig's)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
     p.add_argument("--covariance", default=None, choices=("full", "block"))
@@ -58,6 +61,8 @@ def parse_args(argv=None):
     args = p.parse_args(argv)
     if args.restarts is not None and args.restarts < 1:
         raise UsageError(f"--restarts must be at least 1, got {args.restarts}")
+    if args.subsample is not None and args.subsample < 1:
+        raise UsageError(f"--subsample must be at least 1, got {args.subsample}")
     if args.time_steps is not None and args.time_steps < 2:
         raise UsageError(f"--time-steps must be at least 2, got {args.time_steps}")
     return args
@@ -182,6 +187,7 @@ def _train(args, out: Path, guard, progress: dict) -> int:
         raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")
     kw = {"tool": args.tool, "env": args.env, "seed": args.seed, "device": args.device}
     for key, val in (("restarts", args.restarts), ("covariance", args.covariance), ("init", args.init),
+                     ("subsample", args.subsample),
                      ("offsets", tuple(args.offsets) if args.offsets else None),
                      ("floor_task", args.floor_task), ("floor_joint", args.floor_joint)):
         if val is not None:
@@ -210,7 +216,9 @@ def _train(args, out: Path, guard, progress: dict) -> int:
         with guard.critical():
             remove_checkpoint(out)
     kin = KinematicModel.from_spec(ds.robot)
-    print(f"{len(ds.demos)} demonstrations, {ds.n_observations} observations, landmarks "
+    n_obs = ds.subsample(cfg.subsample).n_observations  # what the fit learns from
+    every = f" (every {cfg.subsample}th of {ds.n_observations})" if cfg.subsample > 1 else ""
+    print(f"{len(ds.demos)} demonstrations, {n_obs} observations{every}, landmarks "
           f"{list(ds.landmark_names)}; T={cfg.time_steps}, {cfg.restarts} restarts", flush=True)
     log = Logger(out, ds.joint_names)
     shown = [len(resumed.notes) if resumed else 0]
@@ -234,7 +242,8 @@ def _train(args, out: Path, guard, progress: dict) -> int:
         log.close()
     m = result.model
     summary = {"learning_time_s": result.timings["total_s"], "n_demos": len(ds.demos),
-               "n_observations": ds.n_observations, "time_steps": cfg.time_steps, "restarts": cfg.restarts,
+               "n_observations": n_obs, "subsample": cfg.subsample, "dt": float(m.task.dt) if m.task else None,
+               "time_steps": cfg.time_steps, "restarts": cfg.restarts,
                "covariance": cfg.covariance, "seed": cfg.seed, "final_loss": result.final_loss,
                "restart_losses": [x if np.isfinite(x) else None for x in result.restart_losses],
                "em_iterations": list(result.em_iterations), "best_restart": result.best_restart,

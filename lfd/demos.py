@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import json
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -88,6 +88,23 @@ class DemoSet:
     @property
     def n_observations(self) -> int:
         return sum(d.n_samples for d in self.demos)
+
+    def subsample(self, stride: int) -> "DemoSet":
+        """Every ``stride``-th sample of each demonstration, the first included, at ``stride * dt``.
+
+        The paper's remedy for densely sampled demonstrations (Sec. VI-B: the 50 Hz pour "could have
+        been mitigated simply by subsampling during learning"). The task's ``dt`` is scaled with the
+        samples, so a model learned from the result plans and executes at the new interval.
+        ``stride == 1`` returns this set unchanged.
+        """
+        if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or stride < 1:
+            raise ValueError(f"subsample stride must be a whole number >= 1, got {stride!r}")
+        stride = int(stride)
+        if stride == 1:
+            return self
+        demos = tuple(replace(d, q=d.q[::stride], dt=d.dt * stride) for d in self.demos)
+        task = replace(self.task, dt=self.task.dt * stride) if self.task is not None else None
+        return replace(self, demos=demos, task=task)
 
     def landmark_index(self, name: str) -> int:
         if name not in self.landmark_names:

@@ -69,6 +69,9 @@ class FitConfig:
         changing the tool point is largely absorbed by that regression and the tool point is
         nearly unidentifiable (measured: 17-45 cm error vs 0.5-2.2 cm for 'block' on synthetic
         data with known truth, see benchmarks/learning.py --compare).
+    subsample : learn from every ``subsample``-th sample of each demonstration
+        (``DemoSet.subsample``; the model's ``task.dt`` becomes ``subsample`` times the
+        demonstrations'). The paper's remedy for its 50 Hz pour demonstrations (Sec. VI-B).
     logdet_scale : ``s`` in ``s log|Sigma|`` (1 = maximum likelihood).
     floor_joint, floor_task : the variance-floor prior's standard deviations (lfd.priors).
     floor_weight : its pseudo-observations ``nu``; None = mean observations per time step.
@@ -98,6 +101,7 @@ class FitConfig:
     """
 
     time_steps: int = 24
+    subsample: int = 1
     offsets: tuple[int, ...] = OFFSETS
     restarts: int = 4
     max_em_iters: int = 25
@@ -142,6 +146,8 @@ class FitConfig:
                              f"{self.tool_search}, {self.tool_grid}")
         if self.band is not None and int(self.band) < 0:
             raise ValueError(f"FitConfig.band must be None or non-negative, got {self.band}")
+        if isinstance(self.subsample, bool) or not isinstance(self.subsample, int) or self.subsample < 1:
+            raise ValueError(f"FitConfig.subsample must be a whole number >= 1, got {self.subsample!r}")
         if int(self.restarts) < 1:
             raise ValueError(f"FitConfig.restarts must be at least 1, got {self.restarts}")
         if sorted(set(self.offsets)) != sorted(self.offsets) or min(self.offsets) < 0 or 1 not in self.offsets:
@@ -296,6 +302,9 @@ def _progress(cfg, fingerprint, histories, losses, iters, notes, best) -> FitPro
 
 def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=None) -> FitResult:
     t0 = time.perf_counter()
+    # checkpoints name the demonstrations as given; the fit sees them subsampled
+    fingerprint = demos_fingerprint(demoset) if on_restart is not None else ""
+    demoset = demoset.subsample(cfg.subsample)
     names = tuple(demoset.landmark_names)
     Z, T = len(names), cfg.time_steps
     need = min_samples(T, cfg.offsets)
@@ -309,7 +318,6 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     data = FitData(demoset, kin, dtype, device)
     t_fk = time.perf_counter() - t0
     torch.manual_seed(cfg.seed)
-    fingerprint = demos_fingerprint(demoset) if on_restart is not None else ""
 
     learn_tool, learn_env = cfg.tool == "learn", cfg.env == "learn"
     fixed_tool = {"gripper": (0.0, 0.0, 0.0), "tip": None, "learn": None}[cfg.tool]
@@ -406,7 +414,7 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
                       options={"tool": cfg.tool, "env": cfg.env, "floor_joint": cfg.floor_joint,
                                "floor_task": cfg.floor_task, "floor_weight": fitter.nu,
                                "volume_prior": cfg.volume_prior, "trans_floor": cfg.trans_floor,
-                               "m_step": cfg.m_step, "seed": cfg.seed})
+                               "m_step": cfg.m_step, "seed": cfg.seed, "subsample": cfg.subsample})
     total = time.perf_counter() - t0
     return FitResult(model=model, loss_history=tuple(histories), em_iterations=tuple(iters),
                      final_loss=float(final_loss), restart_losses=tuple(losses), best_restart=best_r,

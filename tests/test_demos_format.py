@@ -158,3 +158,19 @@ def test_random_corruption_loaded_or_refused(tmp_path_factory, kin, data):
     for demo in ds.demos:  # whatever loads is valid
         assert np.all(np.isfinite(demo.q)) and np.all(np.isfinite(demo.landmarks))
         assert demo.dt > 0 and demo.q.shape[1] == 7
+
+
+def test_subsample_keeps_every_kth_sample_and_scales_dt():
+    ds = _demoset(n=3, samples=31)
+    sub = ds.subsample(5)
+    for d, s in zip(ds.demos, sub.demos):
+        np.testing.assert_array_equal(s.q, d.q[::5])  # the first sample kept, then every 5th
+        assert s.q.shape[0] == 7 and s.dt == pytest.approx(5 * d.dt)
+        np.testing.assert_array_equal(s.landmarks, d.landmarks)
+    assert sub.task.dt == pytest.approx(5 * ds.task.dt) and sub.task.time_steps == ds.task.time_steps
+    assert sub.landmark_names == ds.landmark_names and sub.ground_truth == ds.ground_truth
+    assert ds.demos[0].q.shape[0] == 31 and ds.task.dt == POWDER.dt  # the original is untouched
+    assert ds.subsample(1) is ds
+    for bad in (0, -2, 1.5, True, "2"):
+        with pytest.raises(ValueError, match="subsample stride must be a whole number"):
+            ds.subsample(bad)

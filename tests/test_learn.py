@@ -165,6 +165,22 @@ def test_fixed_modes_and_float32(synth, kin):
     assert res.model.tool.tolist() == [0.0, 0.0, 0.0]
 
 
+def test_subsample_fits_every_kth_sample_at_k_times_dt(kin):
+    # a dense set (6 samples per step): fitting with subsample=2 is fitting the thinned set, and
+    # the model plans and executes at the thinned interval
+    torch.set_num_threads(1)
+    ds, truth = make_synthetic(kin, seed=5, std_scale=0.5, time_steps=T_STEPS, task=POWDER, samples_per_step=(6, 9))
+    cfg = FitConfig(time_steps=T_STEPS, restarts=1, seed=0)
+    a = fit(ds, kin, FitConfig(**{**cfg.__dict__, "subsample": 2}))
+    b = fit(ds.subsample(2), kin, cfg)
+    assert a.model.task.dt == pytest.approx(2 * ds.task.dt) and a.model.options["subsample"] == 2
+    assert torch.equal(a.model.mu, b.model.mu) and torch.equal(a.model.tool, b.model.tool)
+    assert [len(x) for x in a.alignments] == [d.n_samples for d in ds.subsample(2).demos]
+    assert np.linalg.norm(a.model.tool.numpy() - truth.tool) < 0.02
+    with pytest.raises(ValueError, match="FitConfig.subsample"):
+        FitConfig(subsample=0)
+
+
 def test_non_finite_restart_is_dropped(synth, kin):
     ds, _ = synth
     calls = {"n": 0}
