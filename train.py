@@ -38,7 +38,7 @@ def parse_args(argv=None):
     p.add_argument("--time-steps", type=int, default=None)
     p.add_argument("--subsample", type=int, default=None, metavar="K",
                    help="learn from every K-th sample (the model's dt becomes K times the demonstrations'; "
-                        "default: lfd.learn.FitConfig's)")
+                        "default: the task.json's subsample, 1 without one)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
     p.add_argument("--covariance", default=None, choices=("full", "block"))
@@ -187,7 +187,7 @@ def _train(args, out: Path, guard, progress: dict) -> int:
         raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")
     kw = {"tool": args.tool, "env": args.env, "seed": args.seed, "device": args.device}
     for key, val in (("restarts", args.restarts), ("covariance", args.covariance), ("init", args.init),
-                     ("subsample", args.subsample),
+
                      ("offsets", tuple(args.offsets) if args.offsets else None),
                      ("floor_task", args.floor_task), ("floor_joint", args.floor_joint)):
         if val is not None:
@@ -198,6 +198,7 @@ def _train(args, out: Path, guard, progress: dict) -> int:
         except ValueError:
             raise UsageError(f"--band must be a whole number of steps or 'none', got {args.band!r}") from None
     kw["time_steps"] = args.time_steps or (ds.task.time_steps if ds.task else 24)
+    kw["subsample"] = args.subsample or (ds.task.subsample if ds.task else 1)
     try:
         cfg = FitConfig(**kw)
     except ValueError as e:
@@ -217,7 +218,7 @@ def _train(args, out: Path, guard, progress: dict) -> int:
             remove_checkpoint(out)
     kin = KinematicModel.from_spec(ds.robot)
     n_obs = ds.subsample(cfg.subsample).n_observations  # what the fit learns from
-    every = f" (every {cfg.subsample}th of {ds.n_observations})" if cfg.subsample > 1 else ""
+    every = f" (1 in {cfg.subsample} of {ds.n_observations}, dt {ds.dt * cfg.subsample:g} s)" if cfg.subsample > 1 else ""
     print(f"{len(ds.demos)} demonstrations, {n_obs} observations{every}, landmarks "
           f"{list(ds.landmark_names)}; T={cfg.time_steps}, {cfg.restarts} restarts", flush=True)
     log = Logger(out, ds.joint_names)

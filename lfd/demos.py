@@ -95,7 +95,8 @@ class DemoSet:
         The paper's remedy for densely sampled demonstrations (Sec. VI-B: the 50 Hz pour "could have
         been mitigated simply by subsampling during learning"). The task's ``dt`` is scaled with the
         samples, so a model learned from the result plans and executes at the new interval.
-        ``stride == 1`` returns this set unchanged.
+        The task's ``subsample`` (its default stride) becomes 1. ``stride == 1`` returns this set
+        unchanged.
         """
         if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or stride < 1:
             raise ValueError(f"subsample stride must be a whole number >= 1, got {stride!r}")
@@ -103,7 +104,8 @@ class DemoSet:
         if stride == 1:
             return self
         demos = tuple(replace(d, q=d.q[::stride], dt=d.dt * stride) for d in self.demos)
-        task = replace(self.task, dt=self.task.dt * stride) if self.task is not None else None
+        # the task's own learning stride is spent: the thinned set is learned from every sample
+        task = replace(self.task, dt=self.task.dt * stride, subsample=1) if self.task is not None else None
         return replace(self, demos=demos, task=task)
 
     def landmark_index(self, name: str) -> int:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -168,9 +169,22 @@ def test_subsample_keeps_every_kth_sample_and_scales_dt():
         assert s.q.shape[0] == 7 and s.dt == pytest.approx(5 * d.dt)
         np.testing.assert_array_equal(s.landmarks, d.landmarks)
     assert sub.task.dt == pytest.approx(5 * ds.task.dt) and sub.task.time_steps == ds.task.time_steps
+    assert replace(ds, task=replace(ds.task, subsample=5)).subsample(5).task.subsample == 1  # stride spent
     assert sub.landmark_names == ds.landmark_names and sub.ground_truth == ds.ground_truth
     assert ds.demos[0].q.shape[0] == 31 and ds.task.dt == POWDER.dt  # the original is untouched
     assert ds.subsample(1) is ds
     for bad in (0, -2, 1.5, True, "2"):
         with pytest.raises(ValueError, match="subsample stride must be a whole number"):
             ds.subsample(bad)
+
+
+def test_task_subsample_round_trips_and_is_checked(tmp_path):
+    from lfd.tasks import POUR, TaskSpec
+    POUR.save(tmp_path / "task.json")
+    assert TaskSpec.load(tmp_path / "task.json") == POUR and POUR.subsample == 2
+    old = POUR.to_dict()
+    del old["subsample"]  # a task.json written before the field: every sample
+    assert TaskSpec.from_dict(old).subsample == 1
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="TaskSpec.subsample must be a whole number"):
+            replace(POUR, subsample=bad)

@@ -226,3 +226,4 @@ def test_occupancy_note_warns_below_a_third():
     assert "median 3.3 of 11" in occupancy_note(pour_like, 11)
     assert occupancy_note(np.full(6, 6.4), 11) is None  # the powder model's median
     assert occupancy_note(np.full(6, 1.0), 3) is None  # too few demonstrations to judge
+

@@ -175,6 +175,8 @@ CASES = [
     ("time-steps-1", _train("--time-steps", "1"), "--time-steps must be at least 2, got 1"),
     ("band-word", _train("--band", "wide"), "--band must be a whole number of steps or 'none', got 'wide'"),
     ("band-negative", _train("--band", "-2"), "FitConfig.band must be None or non-negative, got -2"),
+    ("subsample-0", _train("--subsample", "0"), "--subsample must be at least 1, got 0"),
+    ("subsample-word", _train("--subsample", "half"), "argument --subsample: invalid int value: 'half'"),
     ("floor-zero", _train("--floor-task", "0"),
      "FitConfig.floor_joint and floor_task must be positive standard deviations, got 0.001, 0.0"),
     ("out-is-file", _train(out=_out_is_file), "exists and is not a folder"),
