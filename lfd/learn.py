@@ -35,7 +35,7 @@ import itertools
 import math
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -408,7 +408,8 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
         notes.append(note)
         warnings.warn(notes[-1], RuntimeWarning)
     kept_names = tuple(names[i] for i in kept)
-    model = TaskModel(tool, w, mu, sigma_inv, log_trans, kept_names, demoset.robot, demoset.task,
+    task = replace(demoset.task, subsample=1) if demoset.task is not None else None  # its stride is spent
+    model = TaskModel(tool, w, mu, sigma_inv, log_trans, kept_names, demoset.robot, task,
                       all_landmark_names=names, offsets=cfg.offsets, covariance=cfg.covariance,
                       logdet_scale=cfg.logdet_scale,
                       options={"tool": cfg.tool, "env": cfg.env, "floor_joint": cfg.floor_joint,

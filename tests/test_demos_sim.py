@@ -118,11 +118,14 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, args, msg):
     assert len(lines) == 1 and msg in lines[0]
 
 
-@pytest.mark.parametrize("placement", ["uniform", "stratified"])
-def test_bowl_is_kept_through_rejected_attempts(tmp_path, monkeypatch, placement):
+@pytest.mark.parametrize("task,asked,placement", [("powder", "uniform", "uniform"),
+                                                  ("powder", "stratified", "stratified"),
+                                                  ("powder", None, "uniform"), ("pour", None, "stratified")])
+def test_bowl_is_kept_through_rejected_attempts(tmp_path, monkeypatch, task, asked, placement):
     """A rejected attempt is redrawn for the same bowl (redrawing the bowl would bias the set);
-    the bowls are the placement's own, and uniform ones are the draws the demonstrator always made
-    (one ``centre + uniform(-h, h, 2)`` per demonstration, before its attempts)."""
+    the bowls are the placement's own (without one asked, the task's default), and uniform ones
+    are the draws the demonstrator always made (one ``centre + uniform(-h, h, 2)`` per
+    demonstration, before its attempts)."""
     import sim.demos as D
     from sim.demo_paths import draw_path
 
@@ -135,7 +138,7 @@ def test_bowl_is_kept_through_rejected_attempts(tmp_path, monkeypatch, placement
         return D.DemoAttempt(np.tile(L.HOME_Q, (5, 1)), path, {}, fail, 1.0)
 
     monkeypatch.setattr(D, "_draw_one", fake)
-    D.generate("powder", tmp_path, n=3, seed=4, progress=False, placement=placement)
+    D.generate(task, tmp_path, n=3, seed=4, progress=False, placement=asked)
     assert len(seen) == 9
     assert all(seen[3 * i] == seen[3 * i + 1] == seen[3 * i + 2] for i in range(3))
     bowls = np.array(seen[::3])  # (3, 2)

@@ -299,3 +299,23 @@ def test_all_restarts_failing_stops_without_a_model(synth_dir, tmp_path, monkeyp
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("train.py: error: every one of the 2 restarts failed")
     assert not any((out / f).exists() for f in ("model.pt", "config.json", "summary.json"))
+
+
+def test_the_task_json_stride_is_the_default_and_subsample_overrides_it(synth_dir, tmp_path, capsys):
+    from lfd.tasks import TaskSpec
+    demos = tmp_path / "demos"
+    shutil.copytree(synth_dir, demos)
+    task = TaskSpec.load(demos / "task.json")
+    replace(task, subsample=2).save(demos / "task.json")
+    for extra, stride in (([], 2), (["--subsample", "1"], 1)):
+        out = tmp_path / f"out{stride}"
+        assert _train_main(["--task", "powder", "--demos", str(demos), "--out", str(out),
+                            "--restarts", "1", "--time-steps", "5", *extra]) == 0
+        summary = json.loads((out / "summary.json").read_text())
+        config = json.loads((out / "config.json").read_text())
+        n_raw = sum(len(np.load(f)["q"]) for f in sorted(demos.glob("*.npz")))
+        n_used = sum(len(np.load(f)["q"][::stride]) for f in sorted(demos.glob("*.npz")))
+        assert summary["subsample"] == stride and summary["n_observations"] == n_used
+        assert summary["dt"] == pytest.approx(stride * task.dt) == config["task"]["dt"]
+        assert config["task"]["subsample"] == 1 and config["options"]["subsample"] == stride
+    assert f"(1 in 2 of {n_raw}, dt {2 * task.dt:g} s)" in capsys.readouterr().out
