@@ -187,7 +187,6 @@ def _train(args, out: Path, guard, progress: dict) -> int:
         raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")
     kw = {"tool": args.tool, "env": args.env, "seed": args.seed, "device": args.device}
     for key, val in (("restarts", args.restarts), ("covariance", args.covariance), ("init", args.init),
-
                      ("offsets", tuple(args.offsets) if args.offsets else None),
                      ("floor_task", args.floor_task), ("floor_joint", args.floor_joint)):
         if val is not None:
@@ -199,6 +198,9 @@ def _train(args, out: Path, guard, progress: dict) -> int:
             raise UsageError(f"--band must be a whole number of steps or 'none', got {args.band!r}") from None
     kw["time_steps"] = args.time_steps or (ds.task.time_steps if ds.task else 24)
     kw["subsample"] = args.subsample or (ds.task.subsample if ds.task else 1)
+    if kw["subsample"] > 1 and ds.task is None:
+        raise UsageError(f"--subsample {kw['subsample']}: {demos_dir} has no task.json, where the model's "
+                         f"sampling interval is kept; add one (lfd.tasks.TaskSpec) or leave --subsample out")
     try:
         cfg = FitConfig(**kw)
     except ValueError as e:
@@ -218,8 +220,8 @@ def _train(args, out: Path, guard, progress: dict) -> int:
             remove_checkpoint(out)
     kin = KinematicModel.from_spec(ds.robot)
     n_obs = ds.subsample(cfg.subsample).n_observations  # what the fit learns from
-    every = f" (1 in {cfg.subsample} of {ds.n_observations}, dt {ds.dt * cfg.subsample:g} s)" if cfg.subsample > 1 else ""
-    print(f"{len(ds.demos)} demonstrations, {n_obs} observations{every}, landmarks "
+    every = f" (1 in {cfg.subsample} of {ds.n_observations})" if cfg.subsample > 1 else ""
+    print(f"{len(ds.demos)} demonstrations, {n_obs} observations{every} at dt {ds.dt * cfg.subsample:g} s, landmarks "
           f"{list(ds.landmark_names)}; T={cfg.time_steps}, {cfg.restarts} restarts", flush=True)
     log = Logger(out, ds.joint_names)
     shown = [len(resumed.notes) if resumed else 0]

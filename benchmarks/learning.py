@@ -56,6 +56,7 @@ def timing(args) -> dict:
     for task in ("powder", "pour"):
         ds, source = task_demos(task, kin)
         cfg = FitConfig(time_steps=ds.task.time_steps if ds.task else 24,
+                        subsample=ds.task.subsample if ds.task else 1,  # as train.py learns it
                         **({"restarts": args.restarts} if args.restarts else {}))
         times, losses = [], []
         for r in range(args.runs):

@@ -115,9 +115,12 @@ def config_record(cfg) -> dict:
 
 
 def demos_fingerprint(demoset) -> str:
-    """sha256 of what a fit reads from a ``DemoSet``: robot, task, names, and every array."""
+    """sha256 of what a fit reads from a ``DemoSet``: robot, task, names, and every array. The
+    task's ``subsample`` is left out: it only picks a default of ``FitConfig.subsample``, which
+    ``config_record`` covers, so editing it in ``task.json`` reads as an option change."""
     h = hashlib.sha256()
-    head = {"robot": demoset.robot.to_dict(), "task": demoset.task.to_dict() if demoset.task else None,
+    task = {k: v for k, v in demoset.task.to_dict().items() if k != "subsample"} if demoset.task else None
+    head = {"robot": demoset.robot.to_dict(), "task": task,
             "joints": list(demoset.joint_names), "landmarks": list(demoset.landmark_names),
             "demos": [[d.name, list(d.q.shape), float(d.dt)] for d in demoset.demos]}
     h.update(json.dumps(head, sort_keys=True).encode())

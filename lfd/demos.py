@@ -90,7 +90,8 @@ class DemoSet:
         return sum(d.n_samples for d in self.demos)
 
     def subsample(self, stride: int) -> "DemoSet":
-        """Every ``stride``-th sample of each demonstration, the first included, at ``stride * dt``.
+        """Every ``stride``-th sample of each demonstration, the first included, at ``stride * dt``
+        (up to ``stride - 1`` samples after the last kept one are dropped).
 
         The paper's remedy for densely sampled demonstrations (Sec. VI-B: the 50 Hz pour "could have
         been mitigated simply by subsampling during learning"). The task's ``dt`` is scaled with the

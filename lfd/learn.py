@@ -310,7 +310,8 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     need = min_samples(T, cfg.offsets)
     short = [d.name or str(i) for i, d in enumerate(demoset.demos) if d.n_samples < need]
     if short:
-        raise ValueError(f"demonstration(s) {short} have fewer than {need} samples, too few for "
+        kept = f" after keeping 1 sample in {cfg.subsample} (FitConfig.subsample)" if cfg.subsample > 1 else ""
+        raise ValueError(f"demonstration(s) {short} have fewer than {need} samples{kept}, too few for "
                          f"{T} time steps with offsets {cfg.offsets}")
     if cfg.tool == "tip" or cfg.env == "bowl":
         if demoset.task is None:

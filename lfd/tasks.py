@@ -28,8 +28,9 @@ class TaskSpec:
         (the paper's "manual" tool landmark: the spoon's tip, the pitcher's spout).
     reference_landmark : the sensed landmark a person would pick (the paper's "manual"
         environment landmark).
-    subsample : the task is learned from every ``subsample``-th sample by default
-        (``lfd.learn.FitConfig.subsample``, ``train.py --subsample``); 1 = every sample.
+    subsample : ``train.py`` learns the task from every ``subsample``-th sample unless told
+        otherwise (``--subsample``; in Python pass ``FitConfig(subsample=task.subsample)``, whose
+        own default is 1); 1 = every sample.
     """
 
     name: str

@@ -56,7 +56,7 @@ PLACEMENTS = ("uniform", "stratified")
 # Each task's default bowl placement. The pour's 11 uniform bowls of seed 0 left the strip of the
 # square nearest the robot empty (no bowl at x < 0.56 m); learned from them, the pour succeeded at
 # 30 of the 32 bowls of base seed 0 farther than 0.58 m from the shoulder but 6 of the 18 nearer
-# ones (README, "Results").
+# ones (README, "Results against the paper").
 # The powder's uniform set meets its target and stays as it was measured.
 DEFAULT_PLACEMENT = {"powder": "uniform", "pour": "stratified"}
 
@@ -268,7 +268,7 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
     from sim.world import World
 
     spec = task_from_name(task)
-    placement = DEFAULT_PLACEMENT[task] if placement is None else placement
+    placement = DEFAULT_PLACEMENT.get(task, "uniform") if placement is None else placement
     if int(n) < 1:
         raise ValueError(f"n must be at least 1, got {n}")
     tool_point = np.asarray(TASK_POINTS[task] if task_point is None else task_point, dtype=float)
@@ -284,7 +284,7 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
     # each bowl is kept through its attempts: redrawing one after a failure would bias the bowl
     # positions towards the easy part of the square. A stratified set is drawn up front; uniform
     # bowls are drawn one per demonstration, as before the option existed, so that a seed still
-    # gives the same demonstrations
+    # gives the same uniform demonstrations
     all_bowls = bowl_positions(n, rng, placement) if placement == "stratified" else None  # (n, 2)
     kin = KinematicModel.from_spec(BAXTER_LEFT, dtype=torch.float64)
     torch.set_num_threads(1)

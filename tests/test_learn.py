@@ -175,10 +175,29 @@ def test_subsample_fits_every_kth_sample_at_k_times_dt(kin):
     b = fit(ds.subsample(2), kin, cfg)
     assert a.model.task.dt == pytest.approx(2 * ds.task.dt) and a.model.options["subsample"] == 2
     assert torch.equal(a.model.mu, b.model.mu) and torch.equal(a.model.tool, b.model.tool)
-    assert [len(x) for x in a.alignments] == [d.n_samples for d in ds.subsample(2).demos]
+    assert [len(x) for x in a.alignments] == [(d.n_samples + 1) // 2 for d in ds.demos]
     assert np.linalg.norm(a.model.tool.numpy() - truth.tool) < 0.02
     with pytest.raises(ValueError, match="FitConfig.subsample"):
         FitConfig(subsample=0)
+    with pytest.raises(ValueError, match=r"fewer than 5 samples after keeping 1 sample in 20 \(FitConfig.subsample\)"):
+        fit(ds, kin, FitConfig(**{**cfg.__dict__, "subsample": 20}))
+
+
+def test_resume_with_subsample_equals_an_uninterrupted_fit(kin):
+    # the checkpoint names the demonstrations as given (and the stride as an option), its state the
+    # thinned samples: a fit resumed after its first restart ends where an uninterrupted one does
+    torch.set_num_threads(1)
+    ds, _ = make_synthetic(kin, seed=6, std_scale=0.5, time_steps=T_STEPS, task=POWDER, samples_per_step=(6, 9))
+    cfg = FitConfig(time_steps=T_STEPS, restarts=2, seed=1, subsample=2)
+    saved = []
+    full = fit(ds, kin, cfg, on_restart=saved.append)
+    assert saved[0].best_state["alignment"].numel() == ds.subsample(2).n_observations
+    resumed = fit(ds, kin, cfg, resume=saved[0])
+    assert resumed.resumed_restarts == 1 and resumed.restart_losses == pytest.approx(full.restart_losses)
+    assert torch.equal(resumed.model.mu, full.model.mu) and torch.equal(resumed.model.tool, full.model.tool)
+    from lfd.checkpoint import CheckpointError
+    with pytest.raises(CheckpointError, match="subsample"):
+        fit(ds, kin, FitConfig(**{**cfg.__dict__, "subsample": 3}), resume=saved[0])
 
 
 def test_non_finite_restart_is_dropped(synth, kin):
@@ -226,4 +245,3 @@ def test_occupancy_note_warns_below_a_third():
     assert "median 3.3 of 11" in occupancy_note(pour_like, 11)
     assert occupancy_note(np.full(6, 6.4), 11) is None  # the powder model's median
     assert occupancy_note(np.full(6, 1.0), 3) is None  # too few demonstrations to judge
-

@@ -80,6 +80,13 @@ def _bad_task_json(d, good):
     return ["train.py", "--task", "powder", "--demos", str(d / "demos"), "--out", str(d / "out"), *RUN]
 
 
+def _no_task_json(d, good):
+    shutil.copytree(good, d / "demos")
+    (d / "demos" / "task.json").unlink()
+    return ["train.py", "--task", "powder", "--demos", str(d / "demos"), "--out", str(d / "out"), *RUN,
+            "--subsample", "2"]
+
+
 def _train(*extra, out=None):
     """A setup: valid demonstrations, train.py with ``extra`` arguments."""
     def setup(d: Path, good: Path):
@@ -176,6 +183,7 @@ CASES = [
     ("band-word", _train("--band", "wide"), "--band must be a whole number of steps or 'none', got 'wide'"),
     ("band-negative", _train("--band", "-2"), "FitConfig.band must be None or non-negative, got -2"),
     ("subsample-0", _train("--subsample", "0"), "--subsample must be at least 1, got 0"),
+    ("subsample-no-task-json", _no_task_json, "has no task.json, where the model's sampling interval is kept"),
     ("subsample-word", _train("--subsample", "half"), "argument --subsample: invalid int value: 'half'"),
     ("floor-zero", _train("--floor-task", "0"),
      "FitConfig.floor_joint and floor_task must be positive standard deviations, got 0.001, 0.0"),
@@ -318,4 +326,4 @@ def test_the_task_json_stride_is_the_default_and_subsample_overrides_it(synth_di
         assert summary["subsample"] == stride and summary["n_observations"] == n_used
         assert summary["dt"] == pytest.approx(stride * task.dt) == config["task"]["dt"]
         assert config["task"]["subsample"] == 1 and config["options"]["subsample"] == stride
-    assert f"(1 in 2 of {n_raw}, dt {2 * task.dt:g} s)" in capsys.readouterr().out
+    assert f"(1 in 2 of {n_raw}) at dt {2 * task.dt:g} s" in capsys.readouterr().out
