@@ -37,7 +37,7 @@ import numpy as np
 
 from lfd.robots import RobotSpec
 from lfd.se3 import rigid_errors
-from lfd.tasks import TaskSpec
+from lfd.tasks import TaskSpec, check_stride
 
 __all__ = ["Demonstration", "DemoSet", "DemoFormatError", "load_demos", "save_demonstration",
            "save_demos", "REQUIRED_KEYS"]
@@ -99,9 +99,7 @@ class DemoSet:
         The task's ``subsample`` (its default stride) becomes 1. ``stride == 1`` returns this set
         unchanged.
         """
-        if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or stride < 1:
-            raise ValueError(f"subsample stride must be a whole number >= 1, got {stride!r}")
-        stride = int(stride)
+        stride = check_stride(stride, "subsample stride")
         if stride == 1:
             return self
         demos = tuple(replace(d, q=d.q[::stride], dt=d.dt * stride) for d in self.demos)

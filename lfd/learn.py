@@ -45,6 +45,7 @@ from lfd.checkpoint import CheckpointError, FitProgress, config_record, demos_fi
 from lfd.dtw import effective_demos, linear_alignment, min_samples, random_alignment, reference_alignments
 from lfd.em import EM_FAILURES, EMFitter, FitData
 from lfd.model import COVARIANCES, OFFSETS, TaskModel
+from lfd.tasks import check_stride
 
 __all__ = ["FitConfig", "FitResult", "fit", "initial_guesses", "TOOL_MODES", "ENV_MODES", "M_STEPS", "INITS"]
 
@@ -146,8 +147,7 @@ class FitConfig:
                              f"{self.tool_search}, {self.tool_grid}")
         if self.band is not None and int(self.band) < 0:
             raise ValueError(f"FitConfig.band must be None or non-negative, got {self.band}")
-        if isinstance(self.subsample, bool) or not isinstance(self.subsample, int) or self.subsample < 1:
-            raise ValueError(f"FitConfig.subsample must be a whole number >= 1, got {self.subsample!r}")
+        object.__setattr__(self, "subsample", check_stride(self.subsample, "FitConfig.subsample"))
         if int(self.restarts) < 1:
             raise ValueError(f"FitConfig.restarts must be at least 1, got {self.restarts}")
         if sorted(set(self.offsets)) != sorted(self.offsets) or min(self.offsets) < 0 or 1 not in self.offsets:

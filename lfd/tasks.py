@@ -12,7 +12,15 @@ import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-__all__ = ["TaskSpec", "POWDER", "POUR", "task_from_name", "TASKS"]
+__all__ = ["TaskSpec", "POWDER", "POUR", "task_from_name", "TASKS", "check_stride"]
+
+
+def check_stride(value, what: str) -> int:
+    """``value`` as an ``int`` if it is a whole number >= 1 (a Python or NumPy integer, not a
+    bool), else a ``ValueError`` naming ``what`` (a subsampling stride: keep 1 sample in ``value``)."""
+    if isinstance(value, bool) or not hasattr(value, "__index__") or int(value) < 1:
+        raise ValueError(f"{what} must be a whole number >= 1, got {value!r}")
+    return int(value)
 
 
 @dataclass(frozen=True)
@@ -45,8 +53,7 @@ class TaskSpec:
             raise ValueError(f"TaskSpec.dt must be positive, got {self.dt}")
         if int(self.time_steps) < 2:
             raise ValueError(f"TaskSpec.time_steps must be at least 2, got {self.time_steps}")
-        if isinstance(self.subsample, bool) or not isinstance(self.subsample, int) or self.subsample < 1:
-            raise ValueError(f"TaskSpec.subsample must be a whole number >= 1, got {self.subsample!r}")
+        object.__setattr__(self, "subsample", check_stride(self.subsample, "TaskSpec.subsample"))
         if len(self.manual_tool_point) != 3:
             raise ValueError(f"TaskSpec.manual_tool_point needs 3 numbers, got {self.manual_tool_point}")
 

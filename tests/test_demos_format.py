@@ -188,3 +188,17 @@ def test_task_subsample_round_trips_and_is_checked(tmp_path):
     for bad in (0, 1.5, True):
         with pytest.raises(ValueError, match="TaskSpec.subsample must be a whole number"):
             replace(POUR, subsample=bad)
+
+
+def test_every_stride_option_takes_numpy_integers_and_refuses_the_rest():
+    # one rule for DemoSet.subsample, TaskSpec.subsample and FitConfig.subsample: a stride read
+    # from an array (np.int64) is a whole number and is stored as a plain int (JSON-serialisable)
+    from lfd.learn import FitConfig
+    from lfd.tasks import POUR
+    ds = _demoset(n=2, samples=12)
+    assert [s.q.shape[0] for s in ds.subsample(np.int64(3)).demos] == [len(d.q[::3]) for d in ds.demos]
+    for made in (replace(POUR, subsample=np.int64(3)), FitConfig(subsample=np.int64(3))):
+        assert made.subsample == 3 and type(made.subsample) is int
+    for bad in (0, -1, 2.0, np.float64(2), True, "2", None):
+        with pytest.raises(ValueError, match="must be a whole number >= 1"):
+            FitConfig(subsample=bad)
