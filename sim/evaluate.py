@@ -5,7 +5,8 @@ Variants (the paper's rows): learned tool + learned environment landmark; learne
 model followed with obstacles ignored. Each is trained once by ``train.py`` (missing ones are
 trained on demand) into ``<models>/<tool>-<env>/``. Scenarios run in parallel worker processes,
 each with its own PyBullet client; finished runs are appended to ``runs.jsonl`` at once, so an
-interrupted evaluation resumes where it stopped.
+interrupted evaluation resumes where it stopped. Each run's task-point path (the model's tool
+point in the world frame as executed) is saved beside it, in ``paths/<variant>_<scenario>.npy``.
 """
 
 from __future__ import annotations
@@ -89,13 +90,18 @@ def model_dir_for(models: Path, v: Variant) -> Path:
     return models / v.model_key
 
 
-def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, seed: int) -> Path:
-    """Train the variant's model with ``train.py`` unless it exists."""
+def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_seed: int = 0) -> Path:
+    """Train the variant's model with ``train.py`` unless it exists.
+
+    ``train_seed`` seeds the learner (and the demonstrations, when ``demos`` is None and
+    ``train.py`` has to make them). It is not the scenario set's base seed: a model is trained
+    once and evaluated on any scenario set, so that tables of different base seeds compare the
+    same models."""
     out = model_dir_for(models, v)
     if (out / "model.pt").is_file() and (out / "config.json").is_file():
         return out
     cmd = [sys.executable, str(ROOT / "train.py"), "--task", task, "--tool", v.tool, "--env", v.env,
-           "--out", str(out), "--seed", str(seed)]
+           "--out", str(out), "--seed", str(train_seed)]
     if demos is not None:
         cmd += ["--demos", str(demos)]
     print(f"[evaluate] training {v.model_key}: {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
@@ -135,6 +141,16 @@ def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roa
                roadmap_size=planner.n_vertices, dwell=dwell, pace=EXEC_PACE,
                roadmap_vertices=planner.roadmap.n if planner.roadmap is not None else 0)
     return out
+
+
+def save_path(out_dir: Path, variant: str, scenario: int, path) -> str:
+    """Write a run's task-point path ``(P, 3)`` (world frame, m, one point every
+    ``ExecSettings.record_every`` simulation steps) to ``paths/<variant>_<scenario>.npy`` under
+    ``out_dir``; returns that name relative to ``out_dir`` (what ``runs.jsonl`` records)."""
+    rel = Path("paths") / f"{variant}_{scenario}.npy"
+    (out_dir / rel).parent.mkdir(parents=True, exist_ok=True)
+    np.save(out_dir / rel, np.asarray(path, dtype=np.float64).reshape(-1, 3))
+    return rel.as_posix()
 
 
 def _pct(values, q) -> float:
@@ -216,7 +232,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     out_dir.mkdir(parents=True, exist_ok=True)
     learn_s = {}
     for v in variants:
-        md = ensure_model(settings.task, models, demos, v, settings.seed)
+        md = ensure_model(settings.task, models, demos, v)
         summary = md / "summary.json"
         learn_s[v.name] = json.loads(summary.read_text()).get("learning_time_s", math.nan) \
             if summary.is_file() else math.nan
@@ -241,37 +257,40 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
             video = str(out_dir / f"{settings.task}_{v.name}_scenario{sc.seed}.gif") \
                 if settings.video and i == 0 else None
             jobs.append((settings.task, sc, v, str(model_dir_for(models, v)), settings.roadmap_size, video,
-                         False, settings.dwell))
+                         True, settings.dwell))
     total = len(variants) * len(scenarios)
     bar = progress(total=total, initial=total - len(jobs)) if progress else None
     with log.open("a") as fh:
         if text and not text.endswith("\n"):
             fh.write("\n")  # the last line was cut by a kill: new runs start their own line
+
+        def record(r: dict) -> None:
+            """Log one finished run at once; its task-point path goes to its own file."""
+            path = r.pop("task_point_path", None)
+            if path is not None:
+                r["task_point_path"] = save_path(out_dir, r["variant"], r["scenario"], path)
+            fh.write(json.dumps(r) + "\n")
+            fh.flush()
+            done[(r["variant"], r["scenario"])] = r
+            if bar:
+                bar.update(1)
+
         if settings.workers <= 1:
             for job in jobs:
-                r = run_one(*job)
-                fh.write(json.dumps(r) + "\n")
-                fh.flush()
-                done[(r["variant"], r["scenario"])] = r
-                if bar:
-                    bar.update(1)
+                record(run_one(*job))
         else:
             with ProcessPoolExecutor(max_workers=settings.workers) as pool:
                 futures = [pool.submit(run_one, *job) for job in jobs]
                 for f in as_completed(futures):
-                    r = f.result()
-                    fh.write(json.dumps(r) + "\n")
-                    fh.flush()
-                    done[(r["variant"], r["scenario"])] = r
-                    if bar:
-                        bar.update(1)
+                    record(f.result())
     if bar:
         bar.close()
     seeds = {sc.seed for sc in scenarios}
     results = {v.name: summarize([r for (n, s), r in done.items() if n == v.name and s in seeds], v,
                                  learn_s[v.name]) for v in variants}
     payload = {"task": settings.task, "base_seed": settings.seed, "n_scenarios": settings.n_scenarios,
-               "roadmap_size": settings.roadmap_size, "dwell": settings.dwell, "variants": results,
+               "roadmap_size": settings.roadmap_size, "dwell": settings.dwell,
+               "models": {v.name: str(model_dir_for(models, v)) for v in variants}, "variants": results,
                "scenario_set": [sc.to_dict() for sc in scenarios]}
     tmp = out_dir / "results.json.tmp"
     tmp.write_text(json.dumps(_strict_json(payload), indent=2, allow_nan=False) + "\n")

@@ -8,11 +8,13 @@ variant: ``ensure_model`` only checks that they exist.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import sim.evaluate as ev
@@ -21,6 +23,18 @@ from sim.scenarios import draw_scenarios
 TASK = "powder"
 VARIANTS = ("learned+learned", "manual+manual")
 N = 3
+
+
+@functools.lru_cache(maxsize=None)
+def _drawn(task: str, n: int, base_seed: int = 0, time_steps: int = 24) -> tuple:
+    """``draw_scenarios`` once per set: the draw checks every scene's reachability in PyBullet,
+    seconds per scene, and these tests only need the scenes' seeds."""
+    return tuple(draw_scenarios(task, n, base_seed, time_steps))
+
+
+@pytest.fixture(autouse=True)
+def _cached_draws(monkeypatch):
+    monkeypatch.setattr(ev, "draw_scenarios", lambda *a, **kw: list(_drawn(*a, **kw)))
 
 
 def _settings(**kw) -> ev.EvalSettings:
@@ -60,11 +74,14 @@ class FakeRunOne:
         if self.interrupt_at is not None and len(self.calls) + 1 == self.interrupt_at:
             raise KeyboardInterrupt
         self.calls.append((variant.name, scenario.seed))
-        return {**_row(variant.name, scenario.seed), "dwell": dwell}
+        row = {**_row(variant.name, scenario.seed), "dwell": dwell}
+        if with_path:  # the executed tool point, as sim.execute records it
+            row["task_point_path"] = [[0.5, 0.1 * scenario.seed, 0.0], [0.6, 0.2, 0.1], [0.7, 0.3, 0.2]]
+        return row
 
 
 def _all_pairs() -> list[tuple[str, int]]:
-    seeds = [sc.seed for sc in draw_scenarios(TASK, N, 0)]
+    seeds = [sc.seed for sc in _drawn(TASK, N, 0)]
     return [(v, s) for v in VARIANTS for s in seeds]
 
 
@@ -109,6 +126,12 @@ def test_interrupted_evaluation_resumes_with_only_the_missing_runs(tmp_path, mod
     assert second.calls == _all_pairs()[2:]  # only the missing pairs, none twice
     assert sorted(_logged(out)) == sorted(_all_pairs())
     _check_results(out, payload)
+
+    # every run's task-point path is on disk, named by its row, and the row stays small
+    for line in (out / "runs.jsonl").read_text().splitlines():
+        r = json.loads(line)
+        path = np.load(out / r["task_point_path"])
+        assert path.shape == (3, 3) and path[0, 1] == pytest.approx(0.1 * r["scenario"])
 
     third = FakeRunOne()  # everything done: nothing runs, the table is rebuilt from the log
     monkeypatch.setattr(ev, "run_one", third)
@@ -209,3 +232,27 @@ def test_summary_reaction_times_only_from_timed_runs():
     assert math.isnan(only_old["reaction_ms"]["median"]) and math.isnan(only_old["build_ms"]["median"])
     table = ev.format_table({v.name: s, "old": only_old}, TASK)
     assert "24ms" in table and table.splitlines()[-2].split()[-1] == "-"
+
+
+def test_missing_model_is_trained_with_the_learning_seed_not_the_scenario_seed(tmp_path, monkeypatch):
+    """Tables of different base seeds must compare the same models: a variant trained on demand
+    gets train.py's learning seed (0), whatever ``--seed`` draws the scenarios."""
+    models = tmp_path / "models"
+    commands = []
+
+    def fake_train(cmd, check, cwd):
+        commands.append(cmd)
+        out = Path(cmd[cmd.index("--out") + 1])
+        out.mkdir(parents=True)
+        (out / "model.pt").write_bytes(b"")
+        (out / "config.json").write_text("{}")
+
+    monkeypatch.setattr(ev.subprocess, "run", fake_train)
+    monkeypatch.setattr(ev, "run_one", FakeRunOne())
+    payload = ev.evaluate(replace(_settings(), seed=7), tmp_path / "eval", models)
+    assert len(commands) == 2  # learn-learn and tip-bowl, each once
+    for cmd in commands:
+        assert cmd[cmd.index("--seed") + 1] == "0"
+    assert payload["base_seed"] == 7
+    by_name = {v.name: v for v in ev.VARIANTS}
+    assert payload["models"] == {v: str(models / by_name[v].model_key) for v in VARIANTS}
