@@ -9,9 +9,12 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
+
+MAX_SEED = 2**31  # scenario seeds are drawn from base * 100003 + i and seed numpy and torch
 
 
 def parse(argv=None):
@@ -40,6 +43,13 @@ def parse(argv=None):
     args = ap.parse_args(argv)
     if args.roadmap_size is not None and args.roadmap_size < 10:
         raise UsageError(f"--roadmap-size must be at least 10, got {args.roadmap_size}")
+    for opt, seed in (("--scenario-seed", args.scenario_seed), ("--seed", args.seed)):
+        if not 0 <= seed < MAX_SEED:
+            raise UsageError(f"{opt} must be in [0, {MAX_SEED}), got {seed}")
+    if args.demos is not None and not args.demos.exists():
+        raise UsageError(f"--demos {args.demos}: no such folder")
+    if args.models is not None and args.models.exists() and not args.models.is_dir():
+        raise UsageError(f"--models {args.models}: exists and is not a folder")
     if args.evaluate:
         if args.task is None:
             raise UsageError("--evaluate needs --task powder|pour")
@@ -53,7 +63,7 @@ def parse(argv=None):
 def main(argv=None) -> int:
     args = parse(argv)
     if args.evaluate:
-        from sim.evaluate import VARIANTS, EvalSettings, evaluate, format_table, model_dir_for
+        from sim.evaluate import VARIANTS, EvalSettings, TrainingFailed, evaluate, format_table, model_dir_for
         from sim.model_check import check_models_for_task
         models = args.models or Path("runs") / args.task / "models"
         variants = tuple(args.variants) if args.variants else tuple(v.name for v in VARIANTS)
@@ -69,7 +79,11 @@ def main(argv=None) -> int:
         settings = EvalSettings(task=args.task, n_scenarios=args.scenarios, seed=args.seed,
                                 roadmap_size=args.roadmap_size, workers=args.workers, video=args.video,
                                 variants=variants, dwell=args.dwell)
-        payload = evaluate(settings, out, models, args.demos, progress)
+        try:
+            payload = evaluate(settings, out, models, args.demos, progress)
+        except TrainingFailed as e:  # train.py printed its reason; no traceback of ours on top
+            print(f"plan.py: error: {e}", file=sys.stderr)
+            return 2 if e.returncode == 2 else 1
         print(format_table(payload["variants"], args.task))
         print(f"results: {out / 'results.json'}")
         return 0

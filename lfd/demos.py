@@ -145,6 +145,8 @@ def _fail(where: str, what: str) -> DemoFormatError:
 
 def _read_npz(path: Path) -> dict:
     where = str(path)
+    if not path.is_file():  # a folder, a FIFO (opening it would block), a broken link
+        raise _fail(where, "not a regular file (a demonstration is an .npz file as numpy.savez writes)")
     if not zipfile.is_zipfile(path):
         raise _fail(where, "not a readable .npz file (not a zip archive as numpy.savez writes)")
     try:
@@ -152,13 +154,20 @@ def _read_npz(path: Path) -> dict:
             missing = [k for k in REQUIRED_KEYS if k not in z.files]
             if missing:
                 raise _fail(where, f"missing key(s) {missing}; a demonstration needs {list(REQUIRED_KEYS)}")
-            return {k: z[k] for k in REQUIRED_KEYS}
+            raw = {k: z[k] for k in REQUIRED_KEYS}
     except DemoFormatError:
         raise
-    except ValueError as e:  # object arrays need pickle, which is refused
-        raise _fail(where, f"cannot read without pickle ({e}); store names as plain string arrays") from e
-    except (OSError, zipfile.BadZipFile, EOFError, KeyError) as e:
+    except ValueError as e:
+        if "pickle" in str(e):  # object arrays need pickle, which is refused
+            raise _fail(where, f"cannot read without pickle ({e}); store names as plain string arrays") from e
+        raise _fail(where, f"damaged .npz file: a member is not a readable array ({e})") from e
+    except (OSError, zipfile.BadZipFile, EOFError, KeyError, RuntimeError, NotImplementedError) as e:
+        # RuntimeError: an encrypted member; NotImplementedError: a compression zipfile lacks
         raise _fail(where, f"not a readable .npz file ({type(e).__name__}: {e})") from e
+    for k, v in raw.items():
+        if not isinstance(v, np.ndarray):  # numpy returns a member that is not .npy as raw bytes
+            raise _fail(where, f"key {k!r} is not a .npy array inside the archive (got {type(v).__name__})")
+    return raw
 
 
 def _as_float(where: str, key: str, value, ndim: int) -> np.ndarray:
@@ -177,7 +186,10 @@ def _as_names(where: str, key: str, value) -> tuple[str, ...]:
     if value.dtype.kind not in "US" or value.ndim != 1:
         raise _fail(where, f"key {key!r} must be a 1-D array of strings, got dtype {value.dtype} "
                            f"and shape {value.shape}")
-    names = tuple(str(v) for v in value.tolist())
+    try:  # bytes (dtype S, e.g. written by Python 2 or h5py) are decoded, not shown as "b'...'"
+        names = tuple(v.decode("utf-8") if isinstance(v, bytes) else str(v) for v in value.tolist())
+    except UnicodeDecodeError as e:
+        raise _fail(where, f"key {key!r} holds bytes that are not UTF-8 text ({e})") from e
     if len(set(names)) != len(names):
         raise _fail(where, f"key {key!r} repeats a name: {list(names)}")
     return names
@@ -214,6 +226,25 @@ def _check_one(path: Path, raw: dict) -> tuple[Demonstration, tuple, tuple, Robo
                            f"bottom row error {bottom[i]:.2g})")
     demo = Demonstration(q=q, dt=float(dt), landmarks=poses, name=path.stem)
     return demo, joint_names, landmark_names, robot
+
+
+def _read_ground_truth(path: Path) -> dict:
+    """``ground_truth.json``: a JSON object; ``tool_point`` (3 finite numbers) and
+    ``bowl_landmark`` (a name), when present, are checked here, before any fit reads them."""
+    try:
+        gt = json.loads(path.read_text())
+    except (ValueError, RecursionError) as e:
+        raise DemoFormatError(f"{path}: not valid JSON: {e}") from e
+    if not isinstance(gt, dict):
+        raise DemoFormatError(f"{path}: must be a JSON object, got {type(gt).__name__}")
+    if "tool_point" in gt:
+        tp = gt["tool_point"]
+        if not (isinstance(tp, list) and len(tp) == 3 and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in tp)):
+            raise DemoFormatError(f"{path}: 'tool_point' must be 3 finite numbers (metres), got {tp!r}")
+    if "bowl_landmark" in gt and not isinstance(gt["bowl_landmark"], str):
+        raise DemoFormatError(f"{path}: 'bowl_landmark' must be a landmark's name, got {gt['bowl_landmark']!r}")
+    return gt
 
 
 def _check_limits(where: str, q: np.ndarray, joint_names, lower, upper, tol: float) -> None:
@@ -255,14 +286,11 @@ def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
     if (root / "task.json").is_file():
         try:
             task = TaskSpec.load(root / "task.json")
-        except (ValueError, KeyError, TypeError) as e:
+        except (ValueError, KeyError, TypeError, RecursionError) as e:
             raise DemoFormatError(f"{root / 'task.json'}: not a valid task definition: {e}") from e
     ground_truth = None
     if (root / "ground_truth.json").is_file():
-        try:
-            ground_truth = json.loads((root / "ground_truth.json").read_text())
-        except ValueError as e:
-            raise DemoFormatError(f"{root / 'ground_truth.json'}: not valid JSON: {e}") from e
+        ground_truth = _read_ground_truth(root / "ground_truth.json")
     if time_steps is None:
         time_steps = task.time_steps if task is not None else 24
 
@@ -287,7 +315,10 @@ def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
                                 f"the task model")
         demos.append(demo)
 
-    _, joint_names, landmark_names, robot, _ = first
+    _, joint_names, landmark_names, robot, dt0 = first
+    if task is not None and abs(task.dt - dt0) > 1e-9 * max(1.0, dt0):
+        raise DemoFormatError(f"{root / 'task.json'}: dt={task.dt} differs from the demonstrations' "
+                              f"sampling interval dt={dt0} (the model's dt comes from task.json)")
     unknown = [n for n in joint_names if n not in robot.joint_names]
     if unknown:
         raise _fail(str(files[0]), f"unknown joint name(s) {unknown}; robot {robot.name!r} has "
@@ -317,6 +348,9 @@ def _main(argv=None) -> int:
     parser.add_argument("--time-steps", type=int, default=None,
                         help="minimum samples per demonstration (default: task.json's, or 24)")
     args = parser.parse_args(argv)
+    if args.time_steps is not None and args.time_steps < 2:
+        from lfd.cli import UsageError
+        raise UsageError(f"--time-steps must be at least 2, got {args.time_steps}")
     ds = load_demos(args.path, time_steps=args.time_steps)
     lengths = [d.n_samples for d in ds.demos]
     print(f"{len(ds.demos)} demonstrations of {ds.task.name if ds.task else 'an unnamed task'} on "

@@ -45,7 +45,7 @@ from lfd.checkpoint import CheckpointError, FitProgress, config_record, demos_fi
 from lfd.dtw import effective_demos, linear_alignment, min_samples, random_alignment, reference_alignments
 from lfd.em import EM_FAILURES, EMFitter, FitData
 from lfd.model import COVARIANCES, OFFSETS, TaskModel
-from lfd.tasks import check_stride
+from lfd.tasks import check_stride, check_whole
 
 __all__ = ["FitConfig", "FitResult", "fit", "initial_guesses", "TOOL_MODES", "ENV_MODES", "M_STEPS", "INITS"]
 
@@ -145,13 +145,20 @@ class FitConfig:
         if not self.tool_search >= 0 or int(self.tool_grid) < 1:
             raise ValueError(f"FitConfig.tool_search must be >= 0 and tool_grid >= 1, got "
                              f"{self.tool_search}, {self.tool_grid}")
-        if self.band is not None and int(self.band) < 0:
-            raise ValueError(f"FitConfig.band must be None or non-negative, got {self.band}")
+        if self.band is not None:  # a band as wide as the model is no band: say None
+            object.__setattr__(self, "band", check_whole(self.band, "FitConfig.band (or None)", 0))
+            if self.band > int(self.time_steps):
+                raise ValueError(f"FitConfig.band must be at most time_steps ({self.time_steps}) or None "
+                                 f"(unconstrained), got {self.band}")
+        if isinstance(self.seed, bool) or not hasattr(self.seed, "__index__") or not 0 <= int(self.seed) < 2**63:
+            raise ValueError(f"FitConfig.seed must be a whole number in [0, 2**63), got {self.seed!r}")
         object.__setattr__(self, "subsample", check_stride(self.subsample, "FitConfig.subsample"))
         if int(self.restarts) < 1:
             raise ValueError(f"FitConfig.restarts must be at least 1, got {self.restarts}")
-        if sorted(set(self.offsets)) != sorted(self.offsets) or min(self.offsets) < 0 or 1 not in self.offsets:
-            raise ValueError(f"FitConfig.offsets must be distinct, non-negative and include 1; got {self.offsets}")
+        if sorted(set(self.offsets)) != sorted(self.offsets) or min(self.offsets) < 0 \
+                or not {0, 1} <= set(self.offsets):
+            raise ValueError(f"FitConfig.offsets must be distinct, non-negative and include 0 and 1 (a "
+                             f"sample may stay in its step or move to the next); got {self.offsets}")
         if not all(math.isfinite(x) and x > 0 for x in (self.floor_joint, self.floor_task)):
             raise ValueError(f"FitConfig.floor_joint and floor_task must be positive standard deviations, "
                              f"got {self.floor_joint}, {self.floor_task}")
@@ -326,8 +333,13 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
         fixed_tool = demoset.task.manual_tool_point
     fixed_env = None
     if cfg.env == "bowl":
+        ref = demoset.task.reference_landmark
+        if ref not in demoset.landmark_names:
+            raise ValueError(f"env='bowl' fixes the environment landmark to the task's reference_landmark "
+                             f"{ref!r} (task.json), which is not among the sensed landmarks "
+                             f"{list(demoset.landmark_names)}")
         fixed_env = np.zeros(Z)
-        fixed_env[demoset.landmark_index(demoset.task.reference_landmark)] = 1.0
+        fixed_env[demoset.landmark_index(ref)] = 1.0
 
     def emit(stage, r, lm_names):
         def on_iter(it, loss, state):

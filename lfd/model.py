@@ -20,6 +20,8 @@ Notation follows the paper (Sec. III-IV). Conventions written once here:
 from __future__ import annotations
 
 import json
+import math
+import numbers
 from pathlib import Path
 
 import torch
@@ -119,6 +121,9 @@ class TaskModel:
         self.landmark_names = tuple(landmark_names)
         self.all_landmark_names = tuple(all_landmark_names or landmark_names)
         self.robot, self.task = robot, task
+        if isinstance(offsets, (str, bytes)) or not all(
+                isinstance(k, numbers.Integral) and not isinstance(k, bool) for k in offsets):
+            raise ValueError(f"offsets must be whole numbers, got {offsets!r}")
         self.offsets = tuple(int(k) for k in offsets)
         if covariance not in COVARIANCES:
             raise ValueError(f"covariance must be one of {COVARIANCES}, got {covariance!r}")
@@ -126,13 +131,46 @@ class TaskModel:
         self.logdet_scale = float(logdet_scale)
         self.options = dict(options or {})
         self._kin = kin
-        T, F = mu.shape
-        d = len(robot.joint_names)
+        self._validate()
+
+    def _validate(self) -> None:
+        """Shapes, finiteness and the invariants the planner relies on (a model folder is
+        untrusted input: a damaged one must fail here, not deep inside a plan)."""
+        for name in self._TENSORS:
+            v = getattr(self, name)
+            if not isinstance(v, torch.Tensor) or not v.is_floating_point():
+                raise ValueError(f"TaskModel.{name} must be a real floating-point tensor, got "
+                                 f"{v.dtype if isinstance(v, torch.Tensor) else type(v).__name__}")
+        if self.mu.dim() != 2:
+            raise ValueError(f"TaskModel.mu must have shape (T, F), got {tuple(self.mu.shape)}")
+        T, F = self.mu.shape
+        d = len(self.robot.joint_names)
         for name, shape in (("tool", (3,)), ("env", (len(self.landmark_names),)), ("mu", (T, d + 3)),
                             ("sigma_inv", (T, F, F)), ("log_trans", (T, len(self.offsets)))):
             got = tuple(getattr(self, name).shape)
             if got != shape:
                 raise ValueError(f"TaskModel.{name} must have shape {shape}, got {got}")
+        if T < 2:
+            raise ValueError(f"a task model needs at least 2 time steps, got {T}")
+        names = self.landmark_names + self.all_landmark_names
+        if not all(isinstance(n, str) and n for n in names) or len(set(self.landmark_names)) != len(self.landmark_names):
+            raise ValueError(f"landmark names must be distinct non-empty strings, got {list(self.landmark_names)}")
+        if not set(self.landmark_names) <= set(self.all_landmark_names):
+            raise ValueError(f"kept landmarks {list(self.landmark_names)} are not among all landmarks "
+                             f"{list(self.all_landmark_names)}")
+        if len(set(self.offsets)) != len(self.offsets) or min(self.offsets) < 0 or 0 not in self.offsets:
+            raise ValueError(f"offsets must be distinct, non-negative and include 0, got {list(self.offsets)}")
+        for name in ("tool", "env", "mu", "sigma_inv"):
+            if not torch.isfinite(getattr(self, name)).all():
+                raise ValueError(f"TaskModel.{name} holds NaN or infinite values")
+        if torch.isnan(self.log_trans).any() or (self.log_trans > 1e-9).any():
+            raise ValueError("TaskModel.log_trans must hold log-probabilities (<= 0, -inf where not permitted)")
+        if abs(float(self.env.sum()) - 1.0) > 1e-4:
+            raise ValueError(f"TaskModel.env must sum to 1, got {float(self.env.sum())}")
+        if not (torch.diagonal(self.sigma_inv, dim1=-2, dim2=-1) > 0).all():
+            raise ValueError("TaskModel.sigma_inv must have a positive diagonal (inverse Cholesky factors)")
+        if not math.isfinite(self.logdet_scale):
+            raise ValueError(f"TaskModel.logdet_scale must be finite, got {self.logdet_scale}")
 
     # -- basic properties
     @property
@@ -262,7 +300,7 @@ class TaskModel:
                 raise ModelFormatError(f"{model_dir}: not an lfd task model (missing {p.name})")
         try:
             cfg = json.loads(cfg_path.read_text())
-        except ValueError as e:
+        except (ValueError, RecursionError) as e:
             raise ModelFormatError(f"{cfg_path}: not valid JSON ({e})") from e
         if not isinstance(cfg, dict) or cfg.get("format") != FORMAT:
             raise ModelFormatError(f"{cfg_path}: not an lfd task model config (expected format "
@@ -274,6 +312,10 @@ class TaskModel:
         if not isinstance(state, dict) or set(state) != set(cls._TENSORS):
             raise ModelFormatError(f"{pt_path}: expected tensors {list(cls._TENSORS)}, got "
                                    f"{sorted(state) if isinstance(state, dict) else type(state).__name__}")
+        not_real = sorted(k for k, v in state.items()
+                          if not isinstance(v, torch.Tensor) or not v.is_floating_point())
+        if not_real:
+            raise ModelFormatError(f"{pt_path}: {not_real} must be real floating-point tensors")
         try:
             t = {k: v.to(dtype=dtype, device=device) for k, v in state.items()}
             return cls(t["tool"], t["env"], t["mu"], t["sigma_inv"], t["log_trans"],

@@ -9,18 +9,25 @@ landmark a human would name as the reference (the bowl).
 from __future__ import annotations
 
 import json
+import math
+import numbers
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-__all__ = ["TaskSpec", "POWDER", "POUR", "task_from_name", "TASKS", "check_stride"]
+__all__ = ["TaskSpec", "POWDER", "POUR", "task_from_name", "TASKS", "check_stride", "check_whole"]
+
+
+def check_whole(value, what: str, minimum: int = 1) -> int:
+    """``value`` as an ``int`` if it is a whole number >= ``minimum`` (a Python or NumPy integer,
+    not a bool nor a float), else a ``ValueError`` naming ``what``."""
+    if isinstance(value, bool) or not hasattr(value, "__index__") or int(value) < minimum:
+        raise ValueError(f"{what} must be a whole number >= {minimum}, got {value!r}")
+    return int(value)
 
 
 def check_stride(value, what: str) -> int:
-    """``value`` as an ``int`` if it is a whole number >= 1 (a Python or NumPy integer, not a
-    bool), else a ``ValueError`` naming ``what`` (a subsampling stride: keep 1 sample in ``value``)."""
-    if isinstance(value, bool) or not hasattr(value, "__index__") or int(value) < 1:
-        raise ValueError(f"{what} must be a whole number >= 1, got {value!r}")
-    return int(value)
+    """A subsampling stride (keep 1 sample in ``value``): ``check_whole(value, what, 1)``."""
+    return check_whole(value, what, 1)
 
 
 @dataclass(frozen=True)
@@ -49,13 +56,23 @@ class TaskSpec:
     subsample: int = 1
 
     def __post_init__(self):
-        if not self.dt > 0:
-            raise ValueError(f"TaskSpec.dt must be positive, got {self.dt}")
-        if int(self.time_steps) < 2:
-            raise ValueError(f"TaskSpec.time_steps must be at least 2, got {self.time_steps}")
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"TaskSpec.name must be a non-empty string, got {self.name!r}")
+        if isinstance(self.dt, bool) or not isinstance(self.dt, numbers.Real) \
+                or not (math.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(f"TaskSpec.dt must be a finite positive number of seconds, got {self.dt!r}")
+        object.__setattr__(self, "dt", float(self.dt))
+        object.__setattr__(self, "time_steps", check_whole(self.time_steps, "TaskSpec.time_steps", 2))
         object.__setattr__(self, "subsample", check_stride(self.subsample, "TaskSpec.subsample"))
-        if len(self.manual_tool_point) != 3:
-            raise ValueError(f"TaskSpec.manual_tool_point needs 3 numbers, got {self.manual_tool_point}")
+        point = self.manual_tool_point
+        if isinstance(point, (str, bytes)) or not hasattr(point, "__len__") or len(point) != 3 \
+                or not all(isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
+                           for x in point):
+            raise ValueError(f"TaskSpec.manual_tool_point needs 3 finite numbers (metres), got {point!r}")
+        object.__setattr__(self, "manual_tool_point", tuple(float(x) for x in point))
+        if not isinstance(self.reference_landmark, str) or not self.reference_landmark:
+            raise ValueError(f"TaskSpec.reference_landmark must be a landmark's name, got "
+                             f"{self.reference_landmark!r}")
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -64,9 +81,15 @@ class TaskSpec:
 
     @classmethod
     def from_dict(cls, d: dict) -> "TaskSpec":
-        return cls(name=str(d["name"]), dt=float(d["dt"]), time_steps=int(d.get("time_steps", 24)),
-                   manual_tool_point=tuple(float(x) for x in d.get("manual_tool_point", (0, 0, 0))),
-                   reference_landmark=str(d.get("reference_landmark", "bowl")),
+        """The task of ``to_dict``'s dict (``task.json``); ``ValueError`` naming the bad entry."""
+        if not isinstance(d, dict):
+            raise ValueError(f"a task is a JSON object, got {type(d).__name__}")
+        if "name" not in d or "dt" not in d:
+            raise ValueError(f"a task needs 'name' and 'dt', got keys {sorted(d)}")
+        point = d.get("manual_tool_point", (0.0, 0.0, 0.0))
+        return cls(name=d["name"], dt=d["dt"], time_steps=d.get("time_steps", 24),
+                   manual_tool_point=tuple(point) if isinstance(point, list) else point,
+                   reference_landmark=d.get("reference_landmark", "bowl"),
                    subsample=d.get("subsample", 1))
 
     def save(self, path: str | Path) -> None:

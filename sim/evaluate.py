@@ -25,12 +25,21 @@ import numpy as np
 from lfd.stcost import DWELLS
 from sim.scenarios import Scenario, draw_scenarios
 
-__all__ = ["Variant", "VARIANTS", "EvalSettings", "run_one", "evaluate", "format_table"]
+__all__ = ["Variant", "VARIANTS", "EvalSettings", "TrainingFailed", "run_one", "evaluate", "format_table"]
 
 ROOT = Path(__file__).resolve().parent.parent
 # how the executor times a plan (``sim.execute.ExecSettings.pace``), logged with every run: runs
 # logged without it were paced per visited step (before ``lfd.timing.step_clock``) and are redone
 EXEC_PACE = "demonstrated"
+
+
+class TrainingFailed(RuntimeError):
+    """``train.py`` could not make a variant's model (its own message is on stderr);
+    ``returncode`` is train.py's exit status (2: bad input, such as broken demonstrations)."""
+
+    def __init__(self, message: str, returncode: int):
+        super().__init__(message)
+        self.returncode = returncode
 
 
 @dataclass(frozen=True)
@@ -105,7 +114,11 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_
     if demos is not None:
         cmd += ["--demos", str(demos)]
     print(f"[evaluate] training {v.model_key}: {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
-    subprocess.run(cmd, check=True, cwd=ROOT)
+    try:
+        subprocess.run(cmd, check=True, cwd=ROOT)
+    except subprocess.CalledProcessError as e:  # train.py has said why on stderr
+        raise TrainingFailed(f"training the {v.name} model ({v.model_key}) failed with exit status "
+                             f"{e.returncode}; see train.py's message above", e.returncode) from e
     return out
 
 

@@ -1,0 +1,270 @@
+"""Broken input found by probing the entry points: each is refused with a message that names the
+file or option, never a traceback, a hang, or a silent change of meaning.
+
+(The demonstration format's common breakages are in ``test_demos_format.py``, crafted model
+files in ``test_untrusted_model.py``; these are the rarer ones.)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import zipfile
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from lfd.demos import DemoFormatError, load_demos, save_demos
+from lfd.learn import FitConfig
+from lfd.model import ModelFormatError, TaskModel
+from lfd.robots import BAXTER_LEFT
+from lfd.tasks import POWDER, TaskSpec
+from helpers import rewrite_npz, small_demoset
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def kin():
+    from lfd.kinematics import KinematicModel
+    return KinematicModel.from_spec()
+
+
+@pytest.fixture()
+def good_dir(tmp_path):
+    save_demos(tmp_path, small_demoset(2, 30, 0, ground_truth={"tool_point": [0, 0, 0.1]}))
+    return tmp_path
+
+
+def _cli_demos(path, *extra) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "lfd.demos", str(path), *extra], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+
+
+def _one_line_exit_2(r: subprocess.CompletedProcess, fragment: str) -> None:
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert fragment in r.stderr, r.stderr
+
+
+# ----------------------------------------------------------------------------- task.json
+@pytest.mark.parametrize("entry,fragment", [
+    ({"time_steps": float("inf")}, "time_steps must be a whole number"),
+    ({"time_steps": 6.9}, "time_steps must be a whole number"),  # was truncated to 6 silently
+    ({"dt": float("inf")}, "dt must be a finite positive number"),
+    ({"manual_tool_point": [0, 0, float("inf")]}, "manual_tool_point needs 3 finite numbers"),
+    ({"name": {"a": 1}}, "name must be a non-empty string"),
+    ({"reference_landmark": ["bowl"]}, "reference_landmark must be a landmark's name"),
+])
+def test_task_json_entries_are_checked(good_dir, kin, entry, fragment):
+    # json.dumps writes inf as Infinity, which Python's json reads back: a real file's content
+    (good_dir / "task.json").write_text(json.dumps({**POWDER.to_dict(), **entry}))
+    with pytest.raises(DemoFormatError, match="task.json") as info:
+        load_demos(good_dir, kin=kin)
+    assert fragment in str(info.value)
+
+
+def test_task_json_dt_must_match_the_files(good_dir, kin):
+    (good_dir / "task.json").write_text(json.dumps({**POWDER.to_dict(), "dt": 0.5}))  # files: 0.1
+    with pytest.raises(DemoFormatError, match=r"task.json: dt=0.5 differs from the demonstrations' sampling"):
+        load_demos(good_dir, kin=kin)
+
+
+def test_task_spec_round_trip_and_numpy_numbers():
+    for task in (POWDER, replace(POWDER, name="x", dt=np.float32(0.25), manual_tool_point=np.ones(3))):
+        again = TaskSpec.from_dict(json.loads(json.dumps(task.to_dict())))
+        assert again == task and type(again.dt) is float and type(again.time_steps) is int
+    with pytest.raises(ValueError, match="a task needs 'name' and 'dt'"):
+        TaskSpec.from_dict({"name": "x"})
+
+
+# ----------------------------------------------------------------------------- ground_truth.json
+@pytest.mark.parametrize("gt,fragment", [
+    ("a string", "must be a JSON object"),
+    ({"tool_point": [1, 2]}, "'tool_point' must be 3 finite numbers"),
+    ({"tool_point": "abc"}, "'tool_point' must be 3 finite numbers"),
+    ({"bowl_landmark": ["x"]}, "'bowl_landmark' must be a landmark's name"),
+])
+def test_ground_truth_is_checked_before_any_fit(good_dir, kin, gt, fragment):
+    """train.py reads it after the whole fit: a bad one used to crash there and lose the model."""
+    (good_dir / "ground_truth.json").write_text(json.dumps(gt))
+    with pytest.raises(DemoFormatError, match="ground_truth.json") as info:
+        load_demos(good_dir, kin=kin)
+    assert fragment in str(info.value)
+
+
+# ----------------------------------------------------------------------------- .npz files
+def _zip_with_member(path: Path, good: Path, name: str, data: bytes) -> None:
+    """A copy of ``good`` whose member ``name`` holds ``data`` (not a .npy array)."""
+    with zipfile.ZipFile(good) as src, zipfile.ZipFile(path, "w") as dst:
+        for item in src.infolist():
+            dst.writestr(item.filename, data if item.filename == name else src.read(item.filename))
+
+
+def test_member_that_is_not_an_array(good_dir, kin):
+    target = good_dir / "demo_001.npz"
+    _zip_with_member(good_dir / "tmp.zip", target, "q.npy", b"plain bytes, no .npy header")
+    os.replace(good_dir / "tmp.zip", target)
+    with pytest.raises(DemoFormatError, match=r"demo_001.npz: .*'q'"):
+        load_demos(good_dir, kin=kin)
+
+
+def test_damaged_member_is_not_blamed_on_pickle(good_dir, kin):
+    target = good_dir / "demo_001.npz"
+    with zipfile.ZipFile(target) as z:
+        q = z.read("q.npy")
+    _zip_with_member(good_dir / "tmp.zip", target, "q.npy", q[: len(q) // 2])  # header intact, data cut
+    os.replace(good_dir / "tmp.zip", target)
+    with pytest.raises(DemoFormatError, match="damaged .npz file") as info:
+        load_demos(good_dir, kin=kin)
+    assert "pickle" not in str(info.value)
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_fifo_named_npz_is_refused_without_blocking(good_dir):
+    os.mkfifo(good_dir / "zz.npz")  # opening it would wait for a writer forever
+    _one_line_exit_2(_cli_demos(good_dir), "not a regular file")
+
+
+def test_broken_link_named_npz(good_dir, kin):
+    (good_dir / "zz.npz").symlink_to(good_dir / "absent.npz")
+    with pytest.raises(DemoFormatError, match=r"zz.npz: not a regular file"):
+        load_demos(good_dir, kin=kin)
+
+
+def test_byte_string_names_are_decoded(good_dir, kin):
+    for f in sorted(good_dir.glob("*.npz")):
+        rewrite_npz(f, joint_names=np.array([n.encode() for n in BAXTER_LEFT.joint_names]),
+                    landmark_names=np.array([b"bowl", b"marker_1", b"marker_2"]))
+    ds = load_demos(good_dir, kin=kin)
+    assert ds.landmark_names == ("bowl", "marker_1", "marker_2")
+    assert ds.joint_names == BAXTER_LEFT.joint_names
+
+
+def test_demos_cli_refuses_too_few_time_steps(good_dir):
+    _one_line_exit_2(_cli_demos(good_dir, "--time-steps", "0"), "--time-steps must be at least 2")
+
+
+# ----------------------------------------------------------------------------- fit options
+@pytest.mark.parametrize("kw,fragment", [
+    ({"band": 10**23}, "FitConfig.band must be at most time_steps"),
+    ({"band": 1.5}, "FitConfig.band (or None) must be a whole number"),
+    ({"seed": -1}, "FitConfig.seed must be a whole number in [0, 2**63)"),
+    ({"seed": 10**23}, "FitConfig.seed must be a whole number in [0, 2**63)"),
+    ({"offsets": (1, 2)}, "include 0 and 1"),
+])
+def test_fit_options_fail_before_the_fit(kw, fragment):
+    with pytest.raises(ValueError) as info:
+        FitConfig(**kw)
+    assert fragment in str(info.value)
+
+
+def test_reference_landmark_missing_names_task_json():
+    from lfd.kinematics import KinematicModel
+    from lfd.learn import fit
+    ds = small_demoset(2, 30, 0)
+    ds = replace(ds, task=replace(ds.task, reference_landmark="vase"))
+    with pytest.raises(ValueError, match=r"reference_landmark 'vase' \(task.json\), which is not among"):
+        fit(ds, KinematicModel.from_spec(), FitConfig(env="bowl", restarts=1))
+
+
+# ----------------------------------------------------------------------------- model folders
+def _model_dir(tmp_path: Path) -> Path:
+    """A small valid model folder (T = 4, one landmark), saved by TaskModel.save."""
+    T, F = 4, 10
+    model = TaskModel(torch.zeros(3, dtype=torch.float64), torch.ones(1, dtype=torch.float64),
+                      torch.zeros(T, F, dtype=torch.float64),
+                      torch.eye(F, dtype=torch.float64).repeat(T, 1, 1),
+                      torch.log(torch.full((T, 3), 1 / 3, dtype=torch.float64)), ["bowl"], BAXTER_LEFT,
+                      task=POWDER, covariance="block")
+    out = tmp_path / "model"
+    model.save(out)
+    return out
+
+
+def _break_tensor(d: Path, key: str, value) -> None:
+    state = torch.load(d / "model.pt", weights_only=True)
+    state[key] = value
+    torch.save(state, d / "model.pt")
+
+
+def _break_config(d: Path, **changes) -> None:
+    cfg = json.loads((d / "config.json").read_text())
+    cfg.update(changes)
+    (d / "config.json").write_text(json.dumps(cfg))
+
+
+BROKEN_MODELS = [
+    ("mu-nan", lambda d: _break_tensor(d, "mu", torch.full((4, 10), float("nan"), dtype=torch.float64)),
+     "mu holds NaN"),
+    ("sigma-zero", lambda d: _break_tensor(d, "sigma_inv", torch.zeros(4, 10, 10, dtype=torch.float64)),
+     "positive diagonal"),
+    ("not-tensors", lambda d: _break_tensor(d, "tool", [0.0, 0.0, 0.0]), "must be real floating-point tensors"),
+    ("complex", lambda d: _break_tensor(d, "tool", torch.zeros(3, dtype=torch.complex128)),
+     "must be real floating-point tensors"),
+    ("log-trans-positive", lambda d: _break_tensor(d, "log_trans", torch.ones(4, 3, dtype=torch.float64)),
+     "log-probabilities"),
+    ("env-not-one", lambda d: _break_tensor(d, "env", torch.full((1,), 0.5, dtype=torch.float64)), "sum to 1"),
+    ("offsets-negative", lambda d: _break_config(d, offsets=[0, -1, 2]), "offsets must be distinct"),
+    ("offsets-fraction", lambda d: _break_config(d, offsets=[0, 1.5, 2]), "offsets must be whole numbers"),
+    ("logdet-nan", lambda d: _break_config(d, logdet_scale=float("nan")), "logdet_scale must be finite"),
+    ("names-null", lambda d: _break_config(d, landmark_names=[None], all_landmark_names=[None]),
+     "distinct non-empty strings"),
+    ("config-deep", lambda d: (d / "config.json").write_text("[" * 100_000 + "]" * 100_000), "not valid JSON"),
+    ("task-inf", lambda d: _break_config(d, task={**POWDER.to_dict(), "time_steps": float("inf")}),
+     "time_steps must be a whole number"),
+]
+
+
+@pytest.mark.parametrize("breaker,fragment", [b[1:] for b in BROKEN_MODELS], ids=[b[0] for b in BROKEN_MODELS])
+def test_damaged_model_refused_on_load(tmp_path, breaker, fragment):
+    d = _model_dir(tmp_path)
+    assert TaskModel.load(d).time_steps == 4  # the folder is sound before it is broken
+    breaker(d)
+    with pytest.raises(ModelFormatError) as info:
+        TaskModel.load(d)
+    assert fragment in str(info.value)
+
+
+def test_one_step_model_refused():
+    with pytest.raises(ValueError, match="at least 2 time steps"):
+        TaskModel(torch.zeros(3), torch.ones(1), torch.zeros(1, 10), torch.eye(10)[None],
+                  torch.zeros(1, 3), ["bowl"], BAXTER_LEFT)
+
+
+# ----------------------------------------------------------------------------- plan.py
+def _plan(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "plan.py", *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=300)
+
+
+@pytest.mark.parametrize("args,fragment", [
+    (("--model", "m", "--scenario-seed", "-1"), "--scenario-seed must be in [0, 2147483648)"),
+    (("--evaluate", "--task", "powder", "--seed", "-3"), "--seed must be in [0, 2147483648)"),
+    (("--evaluate", "--task", "powder", "--seed", str(10**41)), "--seed must be in"),
+    (("--evaluate", "--task", "powder", "--demos", "/nonexistent/demos"), "--demos /nonexistent/demos: no such folder"),
+])
+def test_plan_cli_checks_seeds_and_folders_first(args, fragment):
+    _one_line_exit_2(_plan(*args), fragment)
+
+
+def test_evaluation_whose_training_fails_exits_2_without_a_traceback(tmp_path):
+    """A variant trained on demand from broken demonstrations: train.py says why (one line), the
+    evaluation adds which variant failed, and nothing is simulated."""
+    demos = tmp_path / "demos"
+    save_demos(demos, small_demoset(2, 30, 0))
+    rewrite_npz(demos / "demo_001.npz", dt=np.float64(-1.0))
+    r = _plan("--evaluate", "--task", "powder", "--scenarios", "1", "--workers", "1",
+              "--variants", "learned+learned", "--models", str(tmp_path / "models"), "--demos", str(demos),
+              "--out", str(tmp_path / "eval"))
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr
+    lines = [line for line in r.stderr.strip().splitlines() if not line.startswith("[evaluate]")]
+    assert len(lines) == 2 and "must be positive" in lines[0], r.stderr  # train.py's own reason
+    assert "training the learned+learned model (learn-learn) failed with exit status 2" in lines[1]
+    assert not (tmp_path / "eval" / "runs.jsonl").exists()
