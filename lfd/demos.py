@@ -37,7 +37,7 @@ import numpy as np
 
 from lfd.robots import RobotSpec
 from lfd.se3 import rigid_errors
-from lfd.tasks import TaskSpec, check_stride
+from lfd.tasks import TaskSpec, check_point, check_stride
 
 __all__ = ["Demonstration", "DemoSet", "DemoFormatError", "load_demos", "save_demonstration",
            "save_demos", "REQUIRED_KEYS"]
@@ -238,10 +238,10 @@ def _read_ground_truth(path: Path) -> dict:
     if not isinstance(gt, dict):
         raise DemoFormatError(f"{path}: must be a JSON object, got {type(gt).__name__}")
     if "tool_point" in gt:
-        tp = gt["tool_point"]
-        if not (isinstance(tp, list) and len(tp) == 3 and all(
-                isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in tp)):
-            raise DemoFormatError(f"{path}: 'tool_point' must be 3 finite numbers (metres), got {tp!r}")
+        try:
+            check_point(gt["tool_point"], "'tool_point'")
+        except ValueError as e:
+            raise DemoFormatError(f"{path}: {e}") from e
     if "bowl_landmark" in gt and not isinstance(gt["bowl_landmark"], str):
         raise DemoFormatError(f"{path}: 'bowl_landmark' must be a landmark's name, got {gt['bowl_landmark']!r}")
     return gt

@@ -150,7 +150,7 @@ class FitConfig:
             if self.band > int(self.time_steps):
                 raise ValueError(f"FitConfig.band must be at most time_steps ({self.time_steps}) or None "
                                  f"(unconstrained), got {self.band}")
-        if isinstance(self.seed, bool) or not hasattr(self.seed, "__index__") or not 0 <= int(self.seed) < 2**63:
+        if check_whole(self.seed, "FitConfig.seed", 0) >= 2**63:  # numpy and torch both take it
             raise ValueError(f"FitConfig.seed must be a whole number in [0, 2**63), got {self.seed!r}")
         object.__setattr__(self, "subsample", check_stride(self.subsample, "FitConfig.subsample"))
         if int(self.restarts) < 1:

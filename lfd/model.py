@@ -152,9 +152,9 @@ class TaskModel:
                 raise ValueError(f"TaskModel.{name} must have shape {shape}, got {got}")
         if T < 2:
             raise ValueError(f"a task model needs at least 2 time steps, got {T}")
-        names = self.landmark_names + self.all_landmark_names
-        if not all(isinstance(n, str) and n for n in names) or len(set(self.landmark_names)) != len(self.landmark_names):
-            raise ValueError(f"landmark names must be distinct non-empty strings, got {list(self.landmark_names)}")
+        kept = self.landmark_names
+        if not all(isinstance(n, str) and n for n in kept + self.all_landmark_names) or len(set(kept)) != len(kept):
+            raise ValueError(f"landmark names must be distinct non-empty strings, got {list(kept)}")
         if not set(self.landmark_names) <= set(self.all_landmark_names):
             raise ValueError(f"kept landmarks {list(self.landmark_names)} are not among all landmarks "
                              f"{list(self.all_landmark_names)}")

@@ -14,7 +14,7 @@ import numbers
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-__all__ = ["TaskSpec", "POWDER", "POUR", "task_from_name", "TASKS", "check_stride", "check_whole"]
+__all__ = ["TaskSpec", "POWDER", "POUR", "task_from_name", "TASKS", "check_point", "check_stride", "check_whole"]
 
 
 def check_whole(value, what: str, minimum: int = 1) -> int:
@@ -23,6 +23,16 @@ def check_whole(value, what: str, minimum: int = 1) -> int:
     if isinstance(value, bool) or not hasattr(value, "__index__") or int(value) < minimum:
         raise ValueError(f"{what} must be a whole number >= {minimum}, got {value!r}")
     return int(value)
+
+
+def check_point(value, what: str) -> tuple[float, float, float]:
+    """``value`` as 3 floats if it is 3 finite real numbers (a point in metres), else a
+    ``ValueError`` naming ``what``."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 3 \
+            or not all(isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
+                       for x in value):
+        raise ValueError(f"{what} needs 3 finite numbers (metres), got {value!r}")
+    return tuple(float(x) for x in value)
 
 
 def check_stride(value, what: str) -> int:
@@ -64,12 +74,8 @@ class TaskSpec:
         object.__setattr__(self, "dt", float(self.dt))
         object.__setattr__(self, "time_steps", check_whole(self.time_steps, "TaskSpec.time_steps", 2))
         object.__setattr__(self, "subsample", check_stride(self.subsample, "TaskSpec.subsample"))
-        point = self.manual_tool_point
-        if isinstance(point, (str, bytes)) or not hasattr(point, "__len__") or len(point) != 3 \
-                or not all(isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
-                           for x in point):
-            raise ValueError(f"TaskSpec.manual_tool_point needs 3 finite numbers (metres), got {point!r}")
-        object.__setattr__(self, "manual_tool_point", tuple(float(x) for x in point))
+        object.__setattr__(self, "manual_tool_point",
+                           check_point(self.manual_tool_point, "TaskSpec.manual_tool_point"))
         if not isinstance(self.reference_landmark, str) or not self.reference_landmark:
             raise ValueError(f"TaskSpec.reference_landmark must be a landmark's name, got "
                              f"{self.reference_landmark!r}")
