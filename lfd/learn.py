@@ -146,7 +146,7 @@ class FitConfig:
             raise ValueError(f"FitConfig.tool_search must be >= 0 and tool_grid >= 1, got "
                              f"{self.tool_search}, {self.tool_grid}")
         if self.band is not None:  # a band as wide as the model is no band: say None
-            object.__setattr__(self, "band", check_whole(self.band, "FitConfig.band (or None)", 0))
+            object.__setattr__(self, "band", check_whole(self.band, "FitConfig.band", 0))
             if self.band > int(self.time_steps):
                 raise ValueError(f"FitConfig.band must be at most time_steps ({self.time_steps}) or None "
                                  f"(unconstrained), got {self.band}")

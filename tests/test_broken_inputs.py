@@ -153,7 +153,7 @@ def test_demos_cli_refuses_too_few_time_steps(good_dir):
 # ----------------------------------------------------------------------------- fit options
 @pytest.mark.parametrize("kw,fragment", [
     ({"band": 10**23}, "FitConfig.band must be at most time_steps"),
-    ({"band": 1.5}, "FitConfig.band (or None) must be a whole number"),
+    ({"band": 1.5}, "FitConfig.band must be a whole number >= 0, got 1.5"),
     ({"seed": -1}, "FitConfig.seed must be a whole number >= 0"),
     ({"seed": 10**23}, "FitConfig.seed must be a whole number in [0, 2**63)"),
     ({"offsets": (1, 2)}, "include 0 and 1"),

@@ -181,7 +181,7 @@ CASES = [
     ("restarts-0", _train("--restarts", "0"), "--restarts must be at least 1, got 0"),
     ("time-steps-1", _train("--time-steps", "1"), "--time-steps must be at least 2, got 1"),
     ("band-word", _train("--band", "wide"), "--band must be a whole number of steps or 'none', got 'wide'"),
-    ("band-negative", _train("--band", "-2"), "FitConfig.band must be None or non-negative, got -2"),
+    ("band-negative", _train("--band", "-2"), "FitConfig.band must be a whole number >= 0, got -2"),
     ("subsample-0", _train("--subsample", "0"), "--subsample must be at least 1, got 0"),
     ("subsample-no-task-json", _no_task_json, "has no task.json, where the model's sampling interval is kept"),
     ("subsample-word", _train("--subsample", "half"), "argument --subsample: invalid int value: 'half'"),
