@@ -14,7 +14,9 @@ from pathlib import Path
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
 
-MAX_SEED = 2**31  # scenario seeds are drawn from base * 100003 + i and seed numpy and torch
+# a scenario's seed (base * 100003 + i, sim.scenarios) seeds numpy and torch: both take [0, 2**63)
+MAX_SCENARIO_SEED = 2**63
+MAX_BASE_SEED = MAX_SCENARIO_SEED // 100_003 - 1
 
 
 def parse(argv=None):
@@ -43,9 +45,10 @@ def parse(argv=None):
     args = ap.parse_args(argv)
     if args.roadmap_size is not None and args.roadmap_size < 10:
         raise UsageError(f"--roadmap-size must be at least 10, got {args.roadmap_size}")
-    for opt, seed in (("--scenario-seed", args.scenario_seed), ("--seed", args.seed)):
-        if not 0 <= seed < MAX_SEED:
-            raise UsageError(f"{opt} must be in [0, {MAX_SEED}), got {seed}")
+    for opt, seed, top in (("--scenario-seed", args.scenario_seed, MAX_SCENARIO_SEED),
+                           ("--seed", args.seed, MAX_BASE_SEED)):
+        if not 0 <= seed < top:
+            raise UsageError(f"{opt} must be in [0, {top}), got {seed}")
     if args.demos is not None and not args.demos.exists():
         raise UsageError(f"--demos {args.demos}: no such folder")
     if args.models is not None and args.models.exists() and not args.models.is_dir():

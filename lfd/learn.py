@@ -145,7 +145,7 @@ class FitConfig:
         if not self.tool_search >= 0 or int(self.tool_grid) < 1:
             raise ValueError(f"FitConfig.tool_search must be >= 0 and tool_grid >= 1, got "
                              f"{self.tool_search}, {self.tool_grid}")
-        if self.band is not None:  # a band as wide as the model is no band: say None
+        if self.band is not None:  # wider than the model would constrain nothing: that is None
             object.__setattr__(self, "band", check_whole(self.band, "FitConfig.band", 0))
             if self.band > int(self.time_steps):
                 raise ValueError(f"FitConfig.band must be at most time_steps ({self.time_steps}) or None "
@@ -155,8 +155,11 @@ class FitConfig:
         object.__setattr__(self, "subsample", check_stride(self.subsample, "FitConfig.subsample"))
         if int(self.restarts) < 1:
             raise ValueError(f"FitConfig.restarts must be at least 1, got {self.restarts}")
-        if sorted(set(self.offsets)) != sorted(self.offsets) or min(self.offsets) < 0 \
-                or not {0, 1} <= set(self.offsets):
+        if isinstance(self.offsets, (str, bytes)) or not len(self.offsets):
+            raise ValueError(f"FitConfig.offsets must be a sequence of whole numbers, got {self.offsets!r}")
+        object.__setattr__(self, "offsets", tuple(check_whole(k, "each of FitConfig.offsets", 0)
+                                                  for k in self.offsets))
+        if len(set(self.offsets)) != len(self.offsets) or not {0, 1} <= set(self.offsets):
             raise ValueError(f"FitConfig.offsets must be distinct, non-negative and include 0 and 1 (a "
                              f"sample may stay in its step or move to the next); got {self.offsets}")
         if not all(math.isfinite(x) and x > 0 for x in (self.floor_joint, self.floor_task)):

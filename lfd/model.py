@@ -154,7 +154,8 @@ class TaskModel:
             raise ValueError(f"a task model needs at least 2 time steps, got {T}")
         kept = self.landmark_names
         if not all(isinstance(n, str) and n for n in kept + self.all_landmark_names) or len(set(kept)) != len(kept):
-            raise ValueError(f"landmark names must be distinct non-empty strings, got {list(kept)}")
+            raise ValueError(f"landmark names must be distinct non-empty strings, got {list(kept)} "
+                             f"(kept) of {list(self.all_landmark_names)}")
         if not set(self.landmark_names) <= set(self.all_landmark_names):
             raise ValueError(f"kept landmarks {list(self.landmark_names)} are not among all landmarks "
                              f"{list(self.all_landmark_names)}")

@@ -6,7 +6,8 @@ model followed with obstacles ignored. Each is trained once by ``train.py`` (mis
 trained on demand) into ``<models>/<tool>-<env>/``. Scenarios run in parallel worker processes,
 each with its own PyBullet client; finished runs are appended to ``runs.jsonl`` at once, so an
 interrupted evaluation resumes where it stopped. Each run's task-point path (the model's tool
-point in the world frame as executed) is saved beside it, in ``paths/<variant>_<scenario>.npy``.
+point in the world frame as executed) is saved beside it, in
+``paths/<variant>_<dwell>_<scenario>.npy``.
 """
 
 from __future__ import annotations
@@ -109,16 +110,18 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_
     out = model_dir_for(models, v)
     if (out / "model.pt").is_file() and (out / "config.json").is_file():
         return out
+    # absolute paths: train.py runs in the repository, the caller may not
     cmd = [sys.executable, str(ROOT / "train.py"), "--task", task, "--tool", v.tool, "--env", v.env,
-           "--out", str(out), "--seed", str(train_seed)]
+           "--out", str(out.resolve()), "--seed", str(train_seed)]
     if demos is not None:
-        cmd += ["--demos", str(demos)]
+        cmd += ["--demos", str(Path(demos).resolve())]
     print(f"[evaluate] training {v.model_key}: {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
     try:
         subprocess.run(cmd, check=True, cwd=ROOT)
-    except subprocess.CalledProcessError as e:  # train.py has said why on stderr
-        raise TrainingFailed(f"training the {v.name} model ({v.model_key}) failed with exit status "
-                             f"{e.returncode}; see train.py's message above", e.returncode) from e
+    except subprocess.CalledProcessError as e:
+        why = (f"was killed by signal {-e.returncode}" if e.returncode < 0 else  # e.g. out of memory
+               f"failed with exit status {e.returncode}; see train.py's message above")
+        raise TrainingFailed(f"training the {v.name} model ({v.model_key}) {why}", e.returncode) from e
     return out
 
 
@@ -156,11 +159,13 @@ def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roa
     return out
 
 
-def save_path(out_dir: Path, variant: str, scenario: int, path) -> str:
+def save_path(out_dir: Path, row: dict, path) -> str:
     """Write a run's task-point path ``(P, 3)`` (world frame, m, one point every
-    ``ExecSettings.record_every`` simulation steps) to ``paths/<variant>_<scenario>.npy`` under
-    ``out_dir``; returns that name relative to ``out_dir`` (what ``runs.jsonl`` records)."""
-    rel = Path("paths") / f"{variant}_{scenario}.npy"
+    ``ExecSettings.record_every`` simulation steps) to ``paths/<variant>_<dwell>_<scenario>.npy``
+    under ``out_dir``; returns that name relative to ``out_dir`` (what ``runs.jsonl`` records).
+    The dwell is in the name because a log may keep runs of another setting, which are run again
+    beside them (``evaluate``): each row keeps its own path."""
+    rel = Path("paths") / f"{row['variant']}_{row.get('dwell', 'interval')}_{row['scenario']}.npy"
     (out_dir / rel).parent.mkdir(parents=True, exist_ok=True)
     np.save(out_dir / rel, np.asarray(path, dtype=np.float64).reshape(-1, 3))
     return rel.as_posix()
@@ -281,7 +286,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
             """Log one finished run at once; its task-point path goes to its own file."""
             path = r.pop("task_point_path", None)
             if path is not None:
-                r["task_point_path"] = save_path(out_dir, r["variant"], r["scenario"], path)
+                r["task_point_path"] = save_path(out_dir, r, path)
             fh.write(json.dumps(r) + "\n")
             fh.flush()
             done[(r["variant"], r["scenario"])] = r

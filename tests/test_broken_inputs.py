@@ -146,6 +146,14 @@ def test_byte_string_names_are_decoded(good_dir, kin):
     assert ds.joint_names == BAXTER_LEFT.joint_names
 
 
+def test_empty_landmark_name_refused_before_any_fit(good_dir, kin):
+    """A model refuses an empty landmark name, so the loader must too (not the end of a fit)."""
+    for f in sorted(good_dir.glob("*.npz")):
+        rewrite_npz(f, landmark_names=np.array(["bowl", "", "marker_2"]))
+    with pytest.raises(DemoFormatError, match="'landmark_names' holds an empty name"):
+        load_demos(good_dir, kin=kin)
+
+
 def test_demos_cli_refuses_too_few_time_steps(good_dir):
     _one_line_exit_2(_cli_demos(good_dir, "--time-steps", "0"), "--time-steps must be at least 2")
 
@@ -157,6 +165,8 @@ def test_demos_cli_refuses_too_few_time_steps(good_dir):
     ({"seed": -1}, "FitConfig.seed must be a whole number >= 0"),
     ({"seed": 10**23}, "FitConfig.seed must be a whole number in [0, 2**63)"),
     ({"offsets": (1, 2)}, "include 0 and 1"),
+    ({"offsets": (0, 1, 1.5)}, "each of FitConfig.offsets must be a whole number >= 0, got 1.5"),
+    ({"offsets": ()}, "FitConfig.offsets must be a sequence of whole numbers"),
 ])
 def test_fit_options_fail_before_the_fit(kw, fragment):
     with pytest.raises(ValueError) as info:
@@ -244,8 +254,9 @@ def _plan(*args) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.parametrize("args,fragment", [
-    (("--model", "m", "--scenario-seed", "-1"), "--scenario-seed must be in [0, 2147483648)"),
-    (("--evaluate", "--task", "powder", "--seed", "-3"), "--seed must be in [0, 2147483648)"),
+    (("--model", "m", "--scenario-seed", "-1"), "--scenario-seed must be in [0, 9223372036854775808)"),
+    (("--model", "m", "--scenario-seed", str(2**63)), "--scenario-seed must be in [0, 9223372036854775808)"),
+    (("--evaluate", "--task", "powder", "--seed", "-3"), f"--seed must be in [0, {2**63 // 100_003 - 1})"),
     (("--evaluate", "--task", "powder", "--seed", str(10**41)), "--seed must be in"),
     (("--evaluate", "--task", "powder", "--demos", "/nonexistent/demos"), "--demos /nonexistent/demos: no such folder"),
 ])

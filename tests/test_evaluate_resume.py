@@ -195,6 +195,11 @@ def test_runs_of_another_dwell_setting_are_run_again(tmp_path, models, monkeypat
     payload = ev.evaluate(replace(_settings(), dwell="expected"), out, models)
     assert again.calls == _all_pairs()
     assert payload["dwell"] == "expected"
+    # both settings' rows stay in the log, each naming its own task-point path
+    rows = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
+    files = [r["task_point_path"] for r in rows]
+    assert len(rows) == 2 * len(_all_pairs()) and len(set(files)) == len(files)
+    assert all((out / f).is_file() for f in files)
     with pytest.raises(ValueError, match="dwell must be one of"):
         replace(_settings(), dwell="forever")
 
