@@ -6,7 +6,7 @@
    learned model without obstacle avoidance on 10 seeded scenarios in PyBullet, prints the
    table and writes the results, TensorBoard logs and a GIF of a run. (All five of the paper's
    rows: ``python plan.py --evaluate --task powder --scenarios 10``; ~20 min here beside other jobs;
-   these three keep ``make demo`` within 15 min on a 2-core machine: 10 min 42 s from a fresh
+   these three keep ``make demo`` within 15 min on a 2-core machine: 8 min 53 s from a fresh
    clone, set-up included, with nothing else running.)
 """
 
