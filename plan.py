@@ -13,10 +13,7 @@ import sys
 from pathlib import Path
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
-
-# a scenario's seed (base * 100003 + i, sim.scenarios) seeds numpy and torch: both take [0, 2**63)
-MAX_SCENARIO_SEED = 2**63
-MAX_BASE_SEED = MAX_SCENARIO_SEED // 100_003 - 1
+from sim.scenarios import MAX_BASE_SEED, MAX_SCENARIO_SEED
 
 
 def parse(argv=None):

@@ -36,7 +36,13 @@ import numpy as np
 
 from sim import layout as L
 
-__all__ = ["Scenario", "draw_scenario", "draw_scenarios", "MIN_BOWL_SOURCE", "CLEARANCE"]
+SEED_STRIDE = 100_003  # scenario i of the set with base seed S has seed S * SEED_STRIDE + i
+# a scenario's seed seeds numpy and torch (the planner's draws): both take [0, 2**63)
+MAX_SCENARIO_SEED = 2**63
+MAX_BASE_SEED = MAX_SCENARIO_SEED // SEED_STRIDE - 1
+
+__all__ = ["Scenario", "draw_scenario", "draw_scenarios", "MIN_BOWL_SOURCE", "CLEARANCE", "SEED_STRIDE",
+           "MAX_SCENARIO_SEED", "MAX_BASE_SEED"]
 
 MIN_BOWL_SOURCE = 0.30       # m, bowl centre to source container centre
 MIN_MOVE = 0.20              # m, how far the bowl moves in the powder closed-loop test
@@ -158,4 +164,4 @@ def draw_scenarios(task: str, n: int, base_seed: int = 0, time_steps: int = 24) 
         raise ValueError(f"the number of scenarios must be at least 1, got {n}")
     from sim.reach import DumpReach
     with DumpReach(task) as reach:
-        return [draw_scenario(task, base_seed * 100_003 + i, time_steps, reach) for i in range(n)]
+        return [draw_scenario(task, base_seed * SEED_STRIDE + i, time_steps, reach) for i in range(n)]
