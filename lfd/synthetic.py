@@ -69,8 +69,16 @@ def _ik(kin, q0, q_nom, targets, tool, iters=60, damping=0.02, null_gain=0.3):
 
 def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5, true_landmark=0,
                    tool=(0.03, -0.02, 0.15), fixed_steps=0, rotations=False, seed=0,
-                   task=None, demo_spread=0.1, std_scale=1.0) -> tuple[DemoSet, SyntheticTruth]:
-    """A ``DemoSet`` and the ``SyntheticTruth`` it was drawn from (see the module docstring)."""
+                   task=None, demo_spread=0.1, std_scale=1.0, dt=None) -> tuple[DemoSet, SyntheticTruth]:
+    """A ``DemoSet`` and the ``SyntheticTruth`` it was drawn from (see the module docstring).
+
+    ``dt``: the sampling interval written into every demonstration; default the ``task``'s
+    (``TaskSpec.dt``), 0.1 s without a task, so that a set saved with its task loads again.
+    """
+    if dt is None:
+        dt = task.dt if task is not None else 0.1
+    if not (isinstance(dt, (int, float)) and np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
     rng = np.random.default_rng(seed)
     T = time_steps
     s = np.linspace(0, 1, T)[:, None]
@@ -105,7 +113,7 @@ def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5,
     if float(err.max()) > 2e-3:
         raise RuntimeError(f"synthetic IK did not converge (max error {float(err.max()):.3g} m)")
     splits = np.cumsum([len(a) for a in aligns])[:-1]
-    demos = [Demonstration(q=qm, dt=0.1, landmarks=lm, name=f"synth_{m:02d}")
+    demos = [Demonstration(q=qm, dt=float(dt), landmarks=lm, name=f"synth_{m:02d}")
              for m, (qm, lm) in enumerate(zip(np.split(q.numpy(), splits), lms))]
     names = tuple(["bowl"] + [f"lm{i}" for i in range(1, Z)])
     if true_landmark != 0:

@@ -245,3 +245,24 @@ def test_occupancy_note_warns_below_a_third():
     assert "median 3.3 of 11" in occupancy_note(pour_like, 11)
     assert occupancy_note(np.full(6, 6.4), 11) is None  # the powder model's median
     assert occupancy_note(np.full(6, 1.0), 3) is None  # too few demonstrations to judge
+
+
+@pytest.mark.parametrize("task", ["powder", "pour"])
+def test_synthetic_set_takes_its_tasks_dt_and_loads_back(kin, tmp_path, task):
+    """A synthetic set is sampled at its task's dt, so saved with its task.json it loads again
+    (the loader refuses a task.json whose dt differs from the files')."""
+    from lfd.demos import load_demos, save_demos
+    from lfd.tasks import task_from_name
+
+    spec = task_from_name(task)
+    ds, _ = make_synthetic(kin, n_demos=2, time_steps=3, samples_per_step=(2, 3), seed=0, task=spec)
+    assert {d.dt for d in ds.demos} == {spec.dt}
+    save_demos(tmp_path, ds)
+    back = load_demos(tmp_path, time_steps=3, kin=kin)
+    assert back.task == spec and all(d.dt == spec.dt for d in back.demos)
+    assert np.allclose(back.demos[0].q, ds.demos[0].q)
+
+
+def test_synthetic_dt_is_checked(kin):
+    with pytest.raises(ValueError, match="dt must be a positive number"):
+        make_synthetic(kin, n_demos=2, time_steps=3, dt=0.0)
