@@ -119,6 +119,12 @@ DUMP_NOMINAL = {"powder": (0.055, 120.0), "pour": (0.135, 115.0)}
 ROLL_SPREAD = {"powder": 10.0, "pour": 8.0}
 
 
+def _dump_roll(task: str, rng) -> float:
+    """A demonstration's dumping / pouring roll (rad): uniform within ``ROLL_SPREAD`` of the nominal."""
+    spread = ROLL_SPREAD[task]
+    return float(np.deg2rad(DUMP_NOMINAL[task][1] + rng.uniform(-spread, spread)))
+
+
 def dump_pose(task: str, bowl_xy, dyaw: float = 0.0, tool_point=None) -> np.ndarray:
     """``T_world_tool (4, 4)`` of the demonstrator's nominal dump (powder) or pour over the bowl
     at ``bowl_xy``, facing ``dyaw`` rad off its usual bearing: the task point's position and the
@@ -154,14 +160,14 @@ def _keyframes(task: str, bowl_xy, start: np.ndarray, rng, tool_point) -> tuple[
     mid += side / max(np.linalg.norm(side), 1e-9) * rng.normal(0, 0.03)  # approach deviates a few cm
     if task == "powder":
         work = np.array([bx, by, top + L.BOWL_HEIGHT + rng.uniform(0.04, 0.07)]) + np.r_[rng.normal(0, 0.012, 2), 0]
-        turned = dict(roll=np.deg2rad(DUMP_NOMINAL[task][1] + rng.uniform(-ROLL_SPREAD[task], ROLL_SPREAD[task])), pitch=tilt)
+        turned = dict(roll=_dump_roll(task, rng), pitch=tilt)
         # a person flips the spoon over briskly and holds it there while the powder falls
         hold, turn_t = rng.uniform(1.0, 1.8), 1.3
     else:
         # the cup hangs beside and 0.1 m below the spout: the task point well above the rim
         work = np.array([bx, by, top + L.BOWL_HEIGHT + rng.uniform(0.12, 0.15)]) + np.r_[rng.normal(0, 0.01, 2), 0]
         # the spout (-x) turned down, well past 90 deg: a person pours until the pitcher is empty
-        turned = dict(roll=np.deg2rad(DUMP_NOMINAL[task][1] + rng.uniform(-ROLL_SPREAD[task], ROLL_SPREAD[task])), pitch=tilt)
+        turned = dict(roll=_dump_roll(task, rng), pitch=tilt)
         work[:2] += _pour_aim(yaw, turned["pitch"], turned["roll"], tool_point)
         hold, turn_t = rng.uniform(1.2, 2.0), 2.4
     end = start[:3] + np.r_[rng.normal(0, 0.03, 2), rng.uniform(0.0, 0.05)]

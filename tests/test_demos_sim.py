@@ -204,3 +204,20 @@ def test_eleven_demonstrations_cover_the_square(tmp_path, kin, task):
     vel = kin.velocity.numpy()
     dt = kept[0].path.t[1] - kept[0].path.t[0]
     assert all(np.all(np.abs(np.diff(a.q, axis=0)) <= vel * dt + 1e-12) for a in kept)
+
+
+@pytest.mark.parametrize("task", ["powder", "pour"])
+def test_dump_roll_stays_within_the_demonstrators_spread(task):
+    """The held dump / pour roll of a demonstration is DUMP_NOMINAL +- ROLL_SPREAD (the pitcher
+    rolled well past the ~100 deg it needs to empty), and it varies between demonstrations; the
+    scenario solvability check (sim.reach) uses the same nominal pose."""
+    from sim.demo_paths import DUMP_NOMINAL, ROLL_SPREAD, draw_path
+
+    nominal, spread = DUMP_NOMINAL[task][1], ROLL_SPREAD[task]
+    rolls = np.array([np.rad2deg(draw_path(task, (0.8, 0.3), np.array([0.6, 0.5, 0.0, 0.0]), 0.1,
+                                           np.random.default_rng(seed)).keyframes[5, 5])
+                      for seed in range(30)])
+    assert np.all(np.abs(rolls - nominal) <= spread + 1e-9)
+    assert np.ptp(rolls) > spread  # drawn, not fixed
+    if task == "pour":
+        assert rolls.min() > 100.0
