@@ -1,8 +1,8 @@
 """Plan a learned task in a new scene, or evaluate every model variant on seeded scenarios.
 
-    python plan.py --model runs/powder [--scenario-seed S] [--roadmap-size N] [--dwell D] [--gui]
+    python plan.py --model runs/powder [--scenario-seed S] [--roadmap-size N] [--latency L] [--gui]
                    [--out DIR] [--plot]
-    python plan.py --evaluate --task powder|pour [--scenarios N] [--seed S] [--workers K] [--dwell D]
+    python plan.py --evaluate --task powder|pour [--scenarios N] [--seed S] [--workers K] [--latency L]
                    [--out DIR] [--video]
 """
 
@@ -22,10 +22,9 @@ def parse(argv=None):
     ap.add_argument("--scenario-seed", type=int, default=0, help="which scenario to plan in")
     ap.add_argument("--roadmap-size", type=int, default=None,
                     help="PRM* vertices (default: 1000 per 24 time steps of the model)")
-    ap.add_argument("--dwell", choices=("interval", "expected", "occupancy"), default="interval",
-                    help="what a plan charges for a time step: one sampling interval (the paper's), "
-                         "the demonstrations' expected stay in it, or their mean time in it, as "
-                         "executed (see lfd/stcost.py)")
+    ap.add_argument("--latency", default="measured", metavar="measured|none|SECONDS",
+                    help="simulated time each plan costs while the robot moves on: its wall-clock time "
+                         "(default), none (the world waits: deterministic), or a fixed number of seconds")
     ap.add_argument("--gui", action="store_true", help="watch in the PyBullet GUI")
     ap.add_argument("--execute", action="store_true", help="also execute the plan closed-loop")
     ap.add_argument("--plot", action="store_true", help="plot the plan against the learned means")
@@ -40,6 +39,11 @@ def parse(argv=None):
     ap.add_argument("--video", action="store_true", help="write a GIF of the first scenario of each variant")
     ap.add_argument("--out", type=Path, default=None, help="output folder")
     args = ap.parse_args(argv)
+    from sim.execute import parse_latency
+    try:
+        args.latency = str(parse_latency(args.latency))
+    except ValueError as e:
+        raise UsageError(f"--latency: {e}") from None
     if args.roadmap_size is not None and args.roadmap_size < 10:
         raise UsageError(f"--roadmap-size must be at least 10, got {args.roadmap_size}")
     for opt, seed, top in (("--scenario-seed", args.scenario_seed, MAX_SCENARIO_SEED),
@@ -78,13 +82,14 @@ def main(argv=None) -> int:
             progress = None
         settings = EvalSettings(task=args.task, n_scenarios=args.scenarios, seed=args.seed,
                                 roadmap_size=args.roadmap_size, workers=args.workers, video=args.video,
-                                variants=variants, dwell=args.dwell)
+                                variants=variants, latency=args.latency)
         try:
             payload = evaluate(settings, out, models, args.demos, progress)
         except TrainingFailed as e:  # train.py printed its reason; no traceback of ours on top
             print(f"plan.py: error: {e}", file=sys.stderr)
             return 2 if e.returncode == 2 else 1
         print(format_table(payload["variants"], args.task))
+        print(f"latency mode: {settings.latency} (simulated time charged for each plan)")
         print(f"results: {out / 'results.json'}")
         return 0
 
@@ -95,7 +100,7 @@ def main(argv=None) -> int:
     out = writable_dir(args.out or args.model / "plans")
     scenario = draw_scenario(task_name, args.scenario_seed)
     report, res, model = plan_scenario(args.model, scenario, args.roadmap_size, gui=args.gui,
-                                       execute=args.execute, dwell=args.dwell)
+                                       execute=args.execute, latency=args.latency)
     print(f"plan: {report['status']}  cost {report['cost']:.1f}  waypoints {report['waypoints']}  "
           f"latency {report['latency_ms']:.0f} ms  ({report['edges_evaluated']} edge costs evaluated, "
           f"roadmap of {report['roadmap_vertices']} vertices built in {report['roadmap_build_s']:.1f} s)")

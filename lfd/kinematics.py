@@ -154,6 +154,17 @@ class KinematicModel:
             return T_world_ee[0]
         return T_world_ee.reshape(*q.shape[:-1], 4, 4)
 
+    def frame_origins(self, q) -> tuple[torch.Tensor, torch.Tensor]:
+        """Origins of every frame of the chain ``(B, L, 3)`` (root to end link, world frame) and
+        the end-link pose ``T_world_ee (B, 4, 4)``, from one forward pass: ``q (B, d)``. The arm
+        lies within the union of the segments between consecutive origins grown by the links'
+        radii (used to bound the space a motion sweeps)."""
+        qb = self._check_q(q).reshape(-1, self.dof)
+        frames = self._chain.forward_kinematics(qb, end_only=False)  # {name: Transform3d}
+        mats = [T.get_matrix() for T in frames.values()]  # root first, the end link last
+        origins = torch.stack([M[:, :3, 3].expand(len(qb), 3) for M in mats], dim=1)
+        return origins, mats[-1].expand(len(qb), 4, 4)
+
     def jacobian(self, q, with_pose: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """Geometric Jacobian of the end link in the world frame: ``(B, d) -> (B, 6, d)``
         (rows: linear velocity, then angular velocity; a single ``(d,)`` gives ``(1, 6, d)``).

@@ -1,19 +1,25 @@
 """Closed-loop planning on the spatiotemporal roadmap (paper Sec. V-B, last paragraph).
 
-``ClosedLoopPlanner`` owns the lazy edge costs of one roadmap and re-plans from the robot's current
-configuration and time step whenever asked. New sensed landmarks (``update_landmarks``) replace
-the step cost and drop every landmark-dependent cache; the next ``plan`` recomputes only what its
-search touches. Collision results of roadmap edges are kept (obstacles do not move).
+``ClosedLoopPlanner`` plans from the robot's current configuration and time step whenever asked.
+Edge knowledge lives in one ``lfd.edgestore.EdgeStore``: new sensed landmarks
+(``update_landmarks``) make every edge cost stale, and the next ``plan`` recomputes them in one
+batch; an object that moved (``invalidate_region``) makes the collision state of the edges near
+it unknown again. A plan:
 
-The learned model reaches the planner through ``step_cost``, either
+1. costs every edge and vertex for the current landmarks, if stale (``EdgeStore.costs``), and the
+   edges joining the robot's configuration (and a goal configuration) to their ``connect_k``
+   nearest vertices;
+2. computes the exact cost-to-go of every product node with the edges not known to collide
+   (``lfd.stsearch.cost_to_go``) and runs A* with it from the robot's node;
+3. checks the path's unchecked edges (Lazy PRM; all of them, then decides), marks the colliding
+   ones (and every edge of an end vertex found in collision) and searches again with the same
+   heuristic, a consistent lower bound, until the path is collision-free; when such a search
+   expands many nodes, the heuristic is recomputed without the dropped edges first.
 
-* a factory ``step_cost(a_hat) -> step_nll`` with ``step_nll(Q: (B, d)) -> (B, T)``; it may raise
-  ``LookupError`` (e.g. ``KeyError``) when a task-relevant landmark is not in ``a_hat``; or
-* an object with ``set_landmarks(a_hat)`` and ``step_nll(Q)`` (the same contract).
-
-``a_hat`` is passed through untouched, except that an array-like with non-finite entries counts as
-a missing landmark. ``plan`` never raises for run-time conditions: it returns a ``PlanResult``
-whose ``status`` says what happened. Wrong shapes (programming errors) raise ``ValueError``.
+The returned path is the least-cost path of the roadmap among edges checked collision-free
+(tests: ``tests/test_planner.py`` against networkx's Dijkstra on the fully evaluated product).
+``plan`` never raises for run-time conditions: ``PlanResult.status`` says what happened; wrong
+shapes (programming errors) raise ``ValueError``.
 """
 
 from __future__ import annotations
@@ -21,38 +27,48 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
 
 import numpy as np
 
-from lfd.roadmap import Roadmap
-from lfd.stcost import CostError, CostSettings, SpatiotemporalCosts
-from lfd.stgraph import GOAL, START, SearchBudgetExceeded, search
+from lfd.edgestore import BLOCKED, FREE, UNKNOWN, EdgeStore
+from lfd.roadmap import Roadmap, k_prm_star
+from lfd.stepcost import CostError, StepCost
+from lfd.stsearch import SearchBudgetExceeded, SearchGraph, astar, cost_to_go, transition_table
 
 __all__ = ["PlannerSettings", "PlanResult", "ClosedLoopPlanner", "STATUSES"]
 
 STATUSES = ("ok", "no_path", "start_in_collision", "goal_in_collision", "missing_landmark",
             "invalid_cost", "budget_exceeded", "unreachable")
+# A* expansions allowed with a heuristic computed before edges were dropped; past them the
+# heuristic is recomputed (tens of ms) and the search runs again (measured: benchmarks/reaction.py)
+STALE_EXPANSIONS = 300
 
 
 @dataclass(frozen=True)
 class PlannerSettings:
-    """cost: CostSettings; max_expansions: search budget (product nodes), past which ``plan``
-    returns 'budget_exceeded'; connect_k: neighbours tried for the start/goal configuration
-    (None: k_PRM*(n + 1)); max_path_checks: searches at most per plan when edges are checked
-    on the path (``cost.edge_checks == "path"``), past which ``plan`` returns 'budget_exceeded'."""
-    cost: CostSettings = CostSettings()
+    """quad_dt: max time (s) between quadrature nodes along an edge (None: the model's dt);
+    max_expansions: A* budget (product nodes) past which ``plan`` returns 'budget_exceeded';
+    connect_k: neighbours tried for the robot's (and a goal) configuration (None:
+    k_PRM*(n + 1)); max_path_checks: searches per plan at most (each after dropping colliding
+    edges of the previous path); sweep_margin: metres around the keypoints of an edge's motion
+    within which a moved object makes the edge's collision state unknown."""
+    quad_dt: float | None = None
     max_expansions: int = 500_000
     connect_k: int | None = None
     max_path_checks: int = 500
+    sweep_margin: float = 0.15
 
     def __post_init__(self):
+        if self.quad_dt is not None and not self.quad_dt > 0:
+            raise ValueError(f"Expected quad_dt > 0, got {self.quad_dt}")
         if self.max_expansions < 1:
             raise ValueError(f"Expected max_expansions >= 1, got {self.max_expansions}")
         if self.max_path_checks < 1:
             raise ValueError(f"Expected max_path_checks >= 1, got {self.max_path_checks}")
         if self.connect_k is not None and self.connect_k < 1:
             raise ValueError(f"Expected connect_k >= 1 or None, got {self.connect_k}")
+        if not self.sweep_margin >= 0:
+            raise ValueError(f"Expected sweep_margin >= 0, got {self.sweep_margin}")
 
 
 @dataclass(frozen=True)
@@ -63,9 +79,10 @@ class PlanResult:
     (empty unless 'ok'); time_steps: (n,) int task time step of each waypoint; vertices: (n,)
     roadmap ids (-1 = the start configuration, -2 = the goal configuration); cost: path cost (inf
     unless 'ok'); n_edges_evaluated: roadmap edges whose cost this plan computed; latency_s: wall
-    time of ``plan``; stats: further counters (expanded nodes, step-cost rows, segment checks,
-    ``cpu_s`` = process CPU time of the plan, a load-independent figure);
-    message: a human-readable reason when not 'ok'.
+    time of ``plan``; stats: its parts, in seconds (``cost_s`` edge costs, ``heuristic_s``
+    cost-to-go, ``search_s`` A*, ``collision_s`` checks of the path's edges) and counts
+    (``searches``, ``heuristics``, ``expanded``, ``segment_checks``, ``blocked``), ``cpu_s``
+    (process CPU time, a load-independent figure); message: a reason when not 'ok'.
     """
     status: str
     configurations: np.ndarray
@@ -82,99 +99,99 @@ class PlanResult:
         return self.status == "ok"
 
 
+class _Temporary:
+    """The per-plan vertices (robot configuration, optional goal) and their one-way edges."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self.q: list[np.ndarray] = []
+        self.ell: list[np.ndarray] = []
+        self.src: list[int] = []
+        self.dst: list[int] = []
+        self.W: list[np.ndarray] = []
+        self.state: list[int] = []
+
+    def add_vertex(self, q: np.ndarray, ell: np.ndarray) -> int:
+        self.q.append(q)
+        self.ell.append(ell)
+        return self.n + len(self.q) - 1
+
+    def add_edges(self, src, dst, W) -> None:
+        self.src += list(np.broadcast_to(src, (len(W),)))
+        self.dst += list(np.broadcast_to(dst, (len(W),)))
+        self.W.append(W)
+        self.state += [UNKNOWN] * len(W)
+
+
 class ClosedLoopPlanner:
     """Re-plans on ``roadmap`` for the current landmarks.
 
     Parameters
     ----------
-    roadmap : Roadmap (may grow between plans with ``add_vertices``).
-    step_cost : factory ``a_hat -> step_nll`` or model with ``set_landmarks``/``step_nll``.
-    log_trans : (T, K) log-probabilities of the transitions ``offsets``.
-    dt : sampling interval of the demonstrations (s).
-    vmax : (d,) joint velocity limits (rad/s).
+    roadmap : Roadmap (may grow between plans).
+    step_cost : ``lfd.stepcost.StepCost`` (e.g. ``ModelStepCost(model)``).
+    trans_cost : (T, K) costs of the transitions ``offsets`` in the step cost's units (inf =
+        not permitted), e.g. ``TaskModel.trans_cost``.
+    dt : sampling interval of the demonstrations (s); vmax : (d,) joint velocity limits.
     offsets : permitted time-step offsets (must include 0 for roadmap edges to be usable).
+    keypoint_fn : optional ``Q (N, d) -> (N, K, 3)`` points the robot sweeps (for
+        ``invalidate_region``; without it a region invalidates every edge).
     settings : PlannerSettings.
     """
 
-    def __init__(self, roadmap: Roadmap, step_cost: Callable | Any, log_trans, dt: float, vmax,
-                 offsets=(0, 1, 2), settings: PlannerSettings = PlannerSettings()):
-        if not (callable(step_cost) or hasattr(step_cost, "set_landmarks")):
-            raise ValueError("Expected step_cost to be a factory a_hat -> step_nll or an object "
-                             f"with set_landmarks and step_nll, got {type(step_cost).__name__}")
-        self.roadmap = roadmap
-        self.step_cost = step_cost
-        self.settings = settings
-        self.costs = SpatiotemporalCosts(roadmap, log_trans, dt, vmax, offsets, settings.cost)
-        self.T = self.costs.T
+    def __init__(self, roadmap: Roadmap, step_cost: StepCost, trans_cost, dt: float, vmax,
+                 offsets=(0, 1, 2), settings: PlannerSettings = PlannerSettings(), keypoint_fn=None):
+        tc = np.asarray(trans_cost, dtype=float)
+        offsets = tuple(int(k) for k in offsets)
+        if tc.ndim != 2 or tc.shape[1] != len(offsets) or len(tc) < 1:
+            raise ValueError(f"Expected trans_cost with shape (T, {len(offsets)}), got {tc.shape}")
+        if np.any(tc < -1e-9):
+            raise ValueError(f"Expected trans_cost >= 0 (negative log-probabilities), got a minimum of {tc.min()}")
+        if any(k < 0 for k in offsets) or len(set(offsets)) != len(offsets):
+            raise ValueError(f"Expected distinct non-negative offsets, got {offsets}")
+        if getattr(step_cost, "T", len(tc)) != len(tc):
+            raise ValueError(f"step_cost has {step_cost.T} time steps, trans_cost {len(tc)}")
+        self.roadmap, self.settings = roadmap, settings
+        self.trans = transition_table(tc, offsets)  # (T, kmax + 1)
+        self.T = len(tc)
+        stay = self.trans[:, 0] if 0 in offsets else np.full(self.T, np.inf)
+        self.edges = EdgeStore(roadmap, step_cost, stay, dt, vmax, settings.quad_dt, keypoint_fn,
+                               settings.sweep_margin)
         self._landmark_error: str | None = "no landmarks yet: call update_landmarks"
 
-    def update_landmarks(self, a_hat) -> None:
-        """New sensed landmarks: invalidate the step costs (recomputed lazily by the next plan)."""
+    # ------------------------------------------------------------------ what changed
+    def update_landmarks(self, landmarks) -> None:
+        """New sensed landmarks: every edge cost is stale (recomputed by the next plan). An
+        array-like with non-finite entries counts as a missing landmark."""
         self._landmark_error = None
         try:
-            arr = np.asarray(a_hat, dtype=float)
-            if not np.all(np.isfinite(arr)):
-                self._landmark_error = "a_hat has non-finite entries (unsensed landmark)"
+            if not np.all(np.isfinite(np.asarray(landmarks, dtype=float))):
+                self._landmark_error = "the landmarks have non-finite entries (not sensed)"
         except (TypeError, ValueError):
-            pass  # not an array (e.g. a dict of poses): the model judges it
-        if self._landmark_error is None:
-            try:
-                if hasattr(self.step_cost, "set_landmarks"):
-                    self.step_cost.set_landmarks(a_hat)
-                    fn = self.step_cost.step_nll
-                else:
-                    fn = self.step_cost(a_hat)
-            except LookupError as e:
-                self._landmark_error = f"missing landmark: {e}"
-        if self._landmark_error is not None:
-            self.costs.set_step_nll(None)
-            return
-        self.costs.set_step_nll(fn)
+            pass  # not an array (e.g. a dict of poses): the step cost judges it
+        self.edges.invalidate(landmarks=landmarks)
 
-    def _search_free_path(self, t_start: int, to_goal: bool):
-        """A* on the product graph; with edges checked on the path (Lazy PRM), check the unchecked
-        roadmap edges of the path found, drop those that collide and search again, until the
-        path is collision-free. Returns ``(path, cost, expanded, searches)``."""
-        rm, lazy = self.roadmap, self.settings.cost.edge_checks == "path"
-        expanded = 0
-        succ = {}  # {v: {t: successors}}: the searches of this plan re-expand mostly the same nodes
-        for searches in range(1, self.settings.max_path_checks + 1):
-            res = search(self.costs, START, t_start, GOAL if to_goal else None, self.settings.max_expansions,
-                         succ_cache=succ)
-            expanded += res.n_expanded
-            if not lazy or not res.nodes:
-                return res.nodes, res.cost, expanded, searches
-            collided = False
-            for (a, ta), (b, tb) in zip(res.nodes[:-1], res.nodes[1:]):
-                if a >= 0 and b >= 0 and a != b and not rm.edge_free(a, b):
-                    self.costs.drop_edge(a, b)
-                    succ.pop(a, None)
-                    succ.pop(b, None)
-                    collided = True
-                    # an obstacle is near: settle every edge of both ends now, so the next
-                    # search does not try their neighbours' colliding edges one by one
-                    for v in (a, b):
-                        before = list(rm.graph.adj[v])
-                        kept = set(rm.free_neighbors(v))
-                        for w in before:
-                            if w not in kept:
-                                self.costs.drop_edge(v, w)
-                                succ.pop(w, None)
-                        succ.pop(v, None)
-            if not collided:
-                return res.nodes, res.cost, expanded, searches
-        raise SearchBudgetExceeded(f"no collision-free path after {self.settings.max_path_checks} "
-                                   "searches (each dropped colliding edges)")
+    def invalidate_region(self, centre, radius: float) -> int:
+        """An object moved in or out of the ball ``(centre (3,), radius)``: the edges whose motion
+        passes near it are checked again when a path uses them. Returns how many were reset."""
+        return self.edges.invalidate(region=(centre, radius))
 
-    def _result(self, status, tic, message="", path=(), cost=math.inf, stats=None) -> PlanResult:
-        d = self.roadmap.d
-        conf = np.array([self.costs.position(v) for v, _ in path]).reshape(len(path), d)
+    # ------------------------------------------------------------------ planning
+    def _result(self, status, tic, message="", path=(), temps=None, cost=math.inf, stats=None) -> PlanResult:
+        d, V = self.roadmap.d, self.roadmap.vertices
+        n = self.roadmap.n
+        conf = np.array([V[v] if v < n else temps.q[v - n] for v, _ in path]).reshape(len(path), d)
+        ids = np.array([v if v < n else -1 - (v - n) for v, _ in path], dtype=int)
         return PlanResult(status=status, configurations=conf,
-                          time_steps=np.array([t for _, t in path], dtype=int),
-                          vertices=np.array([v for v, _ in path], dtype=int), cost=float(cost),
-                          n_edges_evaluated=int((stats or {}).get("edges_evaluated", 0)),
-                          latency_s=time.perf_counter() - tic, stats=dict(stats or {}),
-                          message=message)
+                          time_steps=np.array([t for _, t in path], dtype=int), vertices=ids,
+                          cost=float(cost), n_edges_evaluated=int((stats or {}).get("edges_evaluated", 0)),
+                          latency_s=time.perf_counter() - tic, stats=dict(stats or {}), message=message)
+
+    def _check_q(self, q, name):
+        q = np.asarray(q, dtype=float).reshape(-1)
+        if q.shape != (self.roadmap.d,) or not np.all(np.isfinite(q)):
+            raise ValueError(f"Expected {name} finite with shape ({self.roadmap.d},), got {q}")
+        return q
 
     def plan(self, q_current, t_current: int, q_goal=None) -> PlanResult:
         """Minimum-cost path from ``(q_current (d,), t_current)`` to step T-1.
@@ -183,49 +200,145 @@ class ClosedLoopPlanner:
         vertex at step T-1. The returned waypoints start at ``q_current``.
         """
         tic, cpu0 = time.perf_counter(), time.process_time()
-        d = self.roadmap.d
-        q = np.asarray(q_current, dtype=float).reshape(-1)
-        if q.shape != (d,) or not np.all(np.isfinite(q)):
-            raise ValueError(f"Expected q_current finite with shape ({d},), got {q}")
+        q = self._check_q(q_current, "q_current")
         if int(t_current) != t_current or not 0 <= t_current < self.T:
             raise ValueError(f"Expected t_current an integer in [0, {self.T - 1}], got {t_current}")
-        g = None if q_goal is None else np.asarray(q_goal, dtype=float).reshape(-1)
-        if g is not None and (g.shape != (d,) or not np.all(np.isfinite(g))):
-            raise ValueError(f"Expected q_goal finite with shape ({d},), got {g}")
+        g = None if q_goal is None else self._check_q(q_goal, "q_goal")
         if self._landmark_error is not None:
             return self._result("missing_landmark", tic, self._landmark_error)
-        rm = self.roadmap
+        rm, E = self.roadmap, self.edges
         if rm.in_collision(q[None])[0]:
             return self._result("start_in_collision", tic, "q_current is in collision")
         if g is not None and rm.in_collision(g[None])[0]:
             return self._result("goal_in_collision", tic, "q_goal is in collision")
-        seg0 = rm.counters["segment_checks"]
-        c0 = dict(self.costs.counters)
-        # the robot's configuration is a source, the goal a sink (see lfd.stgraph)
-        temps, links = {START: q}, {START: rm.connect_point(q, self.settings.connect_k)}
-        in_links = {}
-        if g is not None:
-            temps[GOAL] = g
-            in_links[GOAL] = rm.connect_point(g, self.settings.connect_k)
-            if rm.segment_free(q, g):  # a direct start-goal edge when it is free
-                links[START].append(GOAL)
-        self.costs.set_temporary(temps, links, in_links)
-        status, message, path, cost, n_exp, searches = "ok", "", (), math.inf, 0, 0
+        stats = {"cost_s": 0.0, "heuristic_s": 0.0, "search_s": 0.0, "collision_s": 0.0, "searches": 0,
+                 "heuristics": 0, "expanded": 0, "segment_checks": 0, "blocked": 0, "edges_evaluated": 0}
+        t0 = time.perf_counter()
         try:
-            self.costs.prepare(int(t_current))
-            path, cost, n_exp, searches = self._search_free_path(int(t_current), g is not None)
+            E.sync()
+            updates = E.counters["cost_updates"]
+            ell, W = E.costs()
+            if E.counters["cost_updates"] > updates:
+                stats["edges_evaluated"] = len(W)
+            temps = self._temporaries(q, g)
+        except LookupError as e:
+            return self._result("missing_landmark", tic, f"missing landmark: {e}")
+        except CostError as e:
+            return self._result("invalid_cost", tic, str(e))
+        stats["cost_s"] = time.perf_counter() - t0
+        status, message, path, cost = "ok", "", [], math.inf
+        try:
+            path, cost = self._search(temps, int(t_current), g is not None, ell, W, stats)
             if not path:
-                status, message = "no_path", "no path to the last time step in the roadmap"
+                status, message = "no_path", "no collision-free path to the last time step in the roadmap"
         except SearchBudgetExceeded as e:
             status, message = "budget_exceeded", str(e)
-        except CostError as e:
-            status, message = "invalid_cost", str(e)
-        stats = {"edges_evaluated": self.costs.counters["edges"] - c0["edges"],
-                 "points_evaluated": self.costs.counters["points"] - c0["points"],
-                 "step_nll_calls": self.costs.counters["calls"] - c0["calls"],
-                 "segment_checks": rm.counters["segment_checks"] - seg0,
-                 "expanded": n_exp, "searches": searches if status == "ok" or path else 0,
-                 "cpu_s": time.process_time() - cpu0}
+        stats["cpu_s"] = time.process_time() - cpu0
         if status != "ok":
-            path, cost = (), math.inf
-        return self._result(status, tic, message, path, cost, stats)
+            path, cost = [], math.inf
+        return self._result(status, tic, message, path, temps, cost, stats)
+
+    def _temporaries(self, q: np.ndarray, g: np.ndarray | None) -> _Temporary:
+        """The robot's configuration (a source) and the goal (a sink), joined to their nearest."""
+        rm, E = self.roadmap, self.edges
+        k = self.settings.connect_k or k_prm_star(rm.n + 1, rm.d)
+        temps = _Temporary(rm.n)
+        ids = rm.nearest(q, k)
+        ell_q, Wq = E.segment_costs(q, rm.vertices[ids])
+        s = temps.add_vertex(q, ell_q)
+        temps.add_edges(s, ids, Wq)
+        if g is not None:
+            ids_g = rm.nearest(g, k)
+            ell_g, Wg = E.segment_costs(g, rm.vertices[ids_g])  # symmetric: the cost into g
+            goal = temps.add_vertex(g, ell_g)
+            temps.add_edges(ids_g, goal, Wg)
+            _, Wsg = E.segment_costs(q, g[None])
+            temps.add_edges(s, goal, Wsg)
+        return temps
+
+    def _graph(self, temps: _Temporary, ell: np.ndarray, W: np.ndarray, goal: bool) -> SearchGraph:
+        """The plan's search graph: the roadmap's edges (both ways) and the temporary edges; rows
+        known to collide are marked in ``blocked`` (kept current by ``_check_path``)."""
+        E = self.edges
+        return SearchGraph(graph=self.roadmap.graph, ends=E.ends,
+                           src=np.array(temps.src, dtype=np.int64), dst=np.array(temps.dst, dtype=np.int64),
+                           W=np.concatenate([W, *temps.W]), ell=np.concatenate([ell, np.stack(temps.ell)]),
+                           goal=temps.n + 1 if goal else None,
+                           blocked=np.concatenate([E.state == BLOCKED, np.zeros(len(temps.src), dtype=bool)]))
+
+    def _search(self, temps: _Temporary, t0: int, goal: bool, ell, W, stats) -> tuple[list, float]:
+        """A* with the exact cost-to-go, then Lazy PRM checks of the path, until it is free."""
+        H = None
+        source = temps.n
+        G = self._graph(temps, ell, W, goal)
+        for _ in range(self.settings.max_path_checks):
+            budget = self.settings.max_expansions
+            if H is not None:
+                budget = min(budget, STALE_EXPANSIONS)
+            for attempt in range(2):
+                if H is None:
+                    tic = time.perf_counter()
+                    H = cost_to_go(G, self.trans, t0)
+                    stats["heuristic_s"] += time.perf_counter() - tic
+                    stats["heuristics"] += 1
+                tic = time.perf_counter()
+                try:
+                    path, cost, n_exp = astar(G, self.trans, H, source, t0, budget)
+                    stats["expanded"] += n_exp
+                    break
+                except SearchBudgetExceeded:
+                    stats["expanded"] += budget
+                    if budget >= self.settings.max_expansions:
+                        raise
+                    H, budget = None, self.settings.max_expansions  # recompute, search again
+                finally:
+                    stats["search_s"] += time.perf_counter() - tic
+                    stats["searches"] += 1
+            if not path:
+                return [], math.inf
+            tic = time.perf_counter()
+            blocked = self._check_path(G, temps, path, stats)
+            stats["collision_s"] += time.perf_counter() - tic
+            if not blocked:
+                return path, cost
+        raise SearchBudgetExceeded(f"no collision-free path after {self.settings.max_path_checks} "
+                                   "searches (each dropped colliding edges)")
+
+    def _check_path(self, G: SearchGraph, temps: _Temporary, path, stats) -> bool:
+        """Check the unchecked edges of ``path`` (all of them); True when one collided."""
+        rm, E = self.roadmap, self.edges
+        n_rm = len(E.ends)
+        rows = []
+        for (a, ta), (b, tb) in zip(path[:-1], path[1:]):
+            if a != b:
+                rows.append(G.row_of(a, b))
+        hit = False
+        checks0, blocked0 = E.counters["segment_checks"], E.counters["blocked"]
+        # a batch of cheap point checks first: every way out of the path's vertices that has not
+        # been screened since a nearby object moved (none far from moved objects)
+        verts = {v for v, _ in path if v < rm.n}
+        E.screen([e for _, _, e in rm.graph.edges(verts, data="eid")])
+        for r in rows:
+            if r < n_rm:
+                if not E.check([r])[0]:
+                    hit = True
+                    for v in E.ends[r]:
+                        incident = [e for _, _, e in rm.graph.edges(int(v), data="eid")]
+                        if rm.in_collision(rm.vertices[v][None])[0]:  # e.g. an object moved onto it
+                            E.set_blocked(incident)
+                        else:  # an obstacle is near: a cheap look at the other ways out of v
+                            E.screen(incident)
+            else:
+                i = r - n_rm
+                if temps.state[i] == UNKNOWN:
+                    a, b = temps.src[i], temps.dst[i]
+                    qa = temps.q[a - temps.n] if a >= temps.n else rm.vertices[a]
+                    qb = temps.q[b - temps.n] if b >= temps.n else rm.vertices[b]
+                    stats["segment_checks"] += 1
+                    temps.state[i] = BLOCKED if rm.segment_collides(qa, qb) else FREE
+                    hit |= temps.state[i] == BLOCKED
+        stats["segment_checks"] += E.counters["segment_checks"] - checks0
+        stats["blocked"] += E.counters["blocked"] - blocked0
+        G.blocked[:n_rm] = E.state == BLOCKED
+        G.blocked[n_rm:] = np.array(temps.state) == BLOCKED
+        return hit

@@ -13,18 +13,14 @@ neighbours (Euclidean, scipy ``cKDTree``); ``k`` grows with ``n``. ``add_vertice
 incrementally: new vertices are joined to their nearest among old and new vertices, old edges are
 kept, nothing is rebuilt except the k-d tree (O(n log n), milliseconds at n = 10^4).
 
-Collision checking of edges is lazy by default (``RoadmapSettings.lazy``): an edge is checked the
-first time a planner asks for the neighbours of one of its endpoints (``free_neighbors``); free
-edges are marked ``free=True`` in the graph, colliding edges are removed. Obstacles are assumed not
-to move during execution (paper, Sec. III-A), so these results never need invalidation. Lazy
-checking makes building a 5,000-vertex roadmap cost only the vertex checks; a plan then checks the
-edges its search touches. Measured (benchmarks/planning.py, d = 7, 4 joint-space spheres, segments
-sampled every 0.05 rad): building 5,000 vertices / 84k edges takes 0.24 s lazy vs 2.5 s eager, and
-the first plan checks ~1,000 edges; replans after a landmark move check only the start's ~27.
+The roadmap holds structure only: vertices are collision-checked when added, edges are not.
+Whether an edge is collision-free is edge state, owned with the edge costs by
+``lfd.edgestore.EdgeStore`` (checked lazily on the paths a search returns, invalidated near
+objects that move). Edges are never removed, so edge ids stay valid for every cache.
 
 Vertices live in a numpy array ``vertices: (n, d)``; edges in a ``networkx.Graph`` whose nodes are
-the integer vertex ids ``0..n-1``, with attributes ``free`` (None = not checked yet, True) and
-``eid`` (a unique integer id, for caches that are arrays indexed by edge).
+the integer vertex ids ``0..n-1``, with the attribute ``eid``: ``0, 1, 2, ...`` in the order the
+edges were added (``edge_array()[eid]`` are its ends).
 """
 
 from __future__ import annotations
@@ -57,10 +53,8 @@ def k_prm_star(n: int, d: int, k_scale: float = 1.0) -> int:
 @dataclass(frozen=True)
 class RoadmapSettings:
     """k_scale: multiplier of k_PRM* (>= 1 for asymptotic optimality);
-    lazy: check edges on first use (True) or when they are created (False);
     max_sample_rounds: rounds of rejection sampling ``build`` tries before giving up."""
     k_scale: float = 1.0
-    lazy: bool = True
     max_sample_rounds: int = 50
 
     def __post_init__(self):
@@ -97,7 +91,8 @@ class Roadmap:
         self._buf = np.empty((0, self.d))
         self._n = 0
         self._tree: cKDTree | None = None
-        self._n_eids = 0  # edge ids are never reused, so caches keyed by them stay valid
+        self._ends = np.empty((0, 2), dtype=np.int64)  # (E, 2) vertex ids by edge id
+        self._pending: list[tuple[int, int]] = []  # edges added since _ends was last extended
         self.counters = {"vertex_checks": 0, "segment_checks": 0, "edges_removed": 0}
 
     # ------------------------------------------------------------------ construction
@@ -201,11 +196,8 @@ class Roadmap:
         return added
 
     def _add_edge(self, i: int, j: int) -> None:
-        if self.settings.lazy:
-            self.graph.add_edge(i, j, free=None, eid=self._n_eids)
-        elif not self._segment_collides(self._buf[i], self._buf[j]):
-            self.graph.add_edge(i, j, free=True, eid=self._n_eids)
-        self._n_eids += 1
+        self.graph.add_edge(i, j, eid=self._n_edges)
+        self._pending.append((i, j))
 
     def _segment_collides(self, q1, q2) -> bool:
         self.counters["segment_checks"] += 1
@@ -225,9 +217,22 @@ class Roadmap:
         return v
 
     @property
-    def n_edge_ids(self) -> int:
-        """Upper bound (exclusive) of the ``eid`` attribute of the graph's edges."""
-        return self._n_eids
+    def _n_edges(self) -> int:
+        return len(self._ends) + len(self._pending)
+
+    @property
+    def n_edges(self) -> int:
+        """Number of edges (edge ids are ``0..n_edges-1``)."""
+        return self._n_edges
+
+    def edge_array(self) -> np.ndarray:
+        """``(E, 2)`` read-only: the vertex ids of each edge, indexed by edge id."""
+        if self._pending:
+            self._ends = np.concatenate([self._ends, np.array(self._pending, dtype=np.int64)])
+            self._pending = []
+        e = self._ends.view()
+        e.flags.writeable = False
+        return e
 
     def k(self, n: int | None = None) -> int:
         """k_PRM* for ``n`` vertices (default: the current size)."""
@@ -241,46 +246,9 @@ class Roadmap:
         _, idx = self._tree.query(np.asarray(q, dtype=float).reshape(self.d), k=k)
         return np.atleast_1d(idx).astype(int)
 
-    def edge_free(self, u: int, v: int) -> bool:
-        """Whether edge ``u-v`` exists and is collision-free (checked now if unknown, cached)."""
-        data = self.graph.get_edge_data(u, v)
-        if data is None:
-            return False
-        if data["free"] is None:
-            if self._segment_collides(self._buf[u], self._buf[v]):
-                self.graph.remove_edge(u, v)
-                self.counters["edges_removed"] += 1
-                return False
-            data["free"] = True
-        return True
-
-    def free_neighbors(self, v: int) -> list[int]:
-        """Neighbours of vertex ``v`` joined by collision-free edges (unknown edges checked now)."""
-        nbrs = list(self.graph.adj[v])
-        return [w for w in nbrs if self.edge_free(v, w)]
-
-    def connect_point(self, q: np.ndarray, k: int | None = None) -> list[int]:
-        """Vertices a new configuration ``q: (d,)`` can be joined to, without adding it.
-
-        Checks the segments to its ``k`` (default ``k_PRM*(n + 1)``) nearest vertices; nothing is
-        cached, so per-replan start configurations do not grow any state.
-        """
-        q = np.asarray(q, dtype=float).reshape(self.d)
-        k = k_prm_star(self._n + 1, self.d, self.settings.k_scale) if k is None else k
-        return [int(j) for j in self.nearest(q, k)
-                if not self._segment_collides(q, self._buf[j])]
-
-    def segment_free(self, q1: np.ndarray, q2: np.ndarray) -> bool:
-        """Whether the segment ``q1-q2`` is collision-free (not cached)."""
-        return not self._segment_collides(np.asarray(q1, dtype=float), np.asarray(q2, dtype=float))
-
-    def check_all_edges(self) -> int:
-        """Check every unknown edge now (eager mode after the fact); returns how many collided."""
-        before = self.counters["edges_removed"]
-        for u, v in list(self.graph.edges):
-            self.edge_free(u, v)
-        return self.counters["edges_removed"] - before
-
+    def segment_collides(self, q1: np.ndarray, q2: np.ndarray) -> bool:
+        """Whether the straight segment ``q1-q2`` collides (``segment_fn``; not cached here)."""
+        return self._segment_collides(np.asarray(q1, dtype=float), np.asarray(q2, dtype=float))
 
 def mixed_samples(sample_fn: Callable, n: int, biased_samples: np.ndarray, bias_fraction: float,
                   rng: np.random.Generator) -> np.ndarray:

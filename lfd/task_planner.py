@@ -24,31 +24,36 @@ never rebuilt. When no sampled execution's IK reaches some step's tool-point tar
 landmark is out of the arm's reach) and the learned transitions cannot skip that step
 (``can_bypass``), ``plan`` returns the status ``unreachable``.
 
-FK of every configuration handed to the cost (roadmap vertices and the quadrature points of
-edges) is computed once and cached per configuration (bounded): those points repeat across
-re-plans, only the landmarks change.
+Interactive rates. A landmark update only marks the edge costs stale (``lfd.edgestore``): the
+next plan recomputes all of them in one batch from per-configuration parts prepared once
+(``lfd.stepcost.ModelStepCost``). Sensed landmarks are obstacles too: when one moves, the edges
+whose motion passes within ``object_radius`` of its old or new place are checked again when a
+path uses them. The regrowth after a far move (IK and projection of new biased vertices, seconds)
+is kept off the critical path when the caller asks: ``update_landmarks(..., grow=False)`` answers
+on the current roadmap, and ``grow()`` adds the vertices afterwards, after which a new plan
+improves on the first (an anytime re-plan; ``sim.execute`` does this while the robot moves).
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
 from lfd.biased import biased_configurations, chain_edges, project_to_model
-from lfd.model import TaskModel, logdet_tensor
+from lfd.model import TaskModel
 from lfd.planner import ClosedLoopPlanner, PlannerSettings, PlanResult
 from lfd.roadmap import Roadmap, RoadmapSettings
+from lfd.stepcost import ModelStepCost
 
 TASK_STEP_SD = 0.05  # m: a step whose tool-point sd (largest axis) is below this is task-relevant
 
 __all__ = ["TaskPlannerSettings", "TaskPlanner", "biased_configurations", "chain_edges",
            "project_to_model", "default_vertices", "can_bypass"]
 
-COST_FLOORS = ("per-step", "global")
 DEFAULT_VERTICES, DEFAULT_VERTICES_STEPS = 1000, 24  # roadmap size for a model of this many steps
 
 
@@ -79,11 +84,10 @@ class TaskPlannerSettings:
     start) alternating with moved-posture ones;
     regrow_distance: landmark motion (m) that triggers new biased samples; regrow_vertices: how
     many; max_vertices: the roadmap never grows past this (default 3 x the roadmap size), so a long run
-    of landmark moves cannot grow memory without bound; fk_cache_rows: rows of cached FK at most;
-    seed: of every random draw; cost_floor: "per-step" (the edge costs' shift is each step's
-    ``s log|Sigma_t|``, so a configuration costs its Mahalanobis term; see ``lfd.stcost``) or
-    "global" (one shift: ``planner.cost.nll_floor``, or the least step cost over the roadmap;
-    a time penalty per interval). "per-step" replaces ``planner.cost.nll_floor``."""
+    of landmark moves cannot grow memory without bound; object_radius: a sensed landmark is also an
+    obstacle of about this radius (m): when it moves, edges passing near its old or new place are
+    checked again; seed: of every random draw. A configuration costs the Mahalanobis term of Eq. 3
+    (the step's ``s log|Sigma_t|`` is a constant per step and left out, so costs are >= 0)."""
 
     n_vertices: int | None = None
     bias_fraction: float = 0.6
@@ -93,11 +97,10 @@ class TaskPlannerSettings:
     posture_spread: float = 1.0
     min_free_per_step: int = 3
     extra_posture_rounds: int = 3
-    cost_floor: str = "per-step"
     regrow_distance: float = 0.10
     regrow_vertices: int = 400
     max_vertices: int | None = None
-    fk_cache_rows: int = 400_000
+    object_radius: float = 0.13
     seed: int = 0
     roadmap: RoadmapSettings = field(default_factory=RoadmapSettings)
     planner: PlannerSettings = field(default_factory=PlannerSettings)
@@ -116,8 +119,8 @@ class TaskPlannerSettings:
         if not 0.0 <= self.posture_share <= 1.0 or self.posture_spread < 0:
             raise ValueError("posture_share must be in [0, 1] and posture_spread >= 0, got "
                              f"{self.posture_share}, {self.posture_spread}")
-        if self.cost_floor not in COST_FLOORS:
-            raise ValueError(f"cost_floor must be one of {COST_FLOORS}, got {self.cost_floor!r}")
+        if not self.object_radius >= 0:
+            raise ValueError(f"object_radius must be >= 0, got {self.object_radius}")
         if self.regrow_distance <= 0 or self.regrow_vertices < 0:
             raise ValueError("regrow_distance must be > 0 and regrow_vertices >= 0, got "
                              f"{self.regrow_distance}, {self.regrow_vertices}")
@@ -144,46 +147,6 @@ def can_bypass(log_trans: np.ndarray, offsets, blocked, t_start: int) -> bool:
             if k > 0 and t + k < T and np.isfinite(lp) and not bad[t + k]:
                 ok[t + k] = True
     return bool(ok[-1])
-
-
-class _FKCache:
-    """FK of configurations, computed once per configuration and kept (at most ``max_rows``).
-
-    Rows are keyed by their bytes: roadmap vertices and the quadrature points of an edge are the
-    same arrays every time the search touches them, whatever the landmarks. When full, the cache
-    starts afresh (bounded memory over any number of re-plans).
-    """
-
-    def __init__(self, kin, max_rows: int):
-        self.kin, self.max_rows = kin, max_rows
-        self._index: dict[bytes, int] = {}
-        self._T = torch.empty(0, 4, 4, dtype=kin.dtype, device=kin.device)  # (N, 4, 4)
-        self.hits = self.misses = 0
-
-    @property
-    def rows(self) -> int:
-        return len(self._index)
-
-    def __call__(self, Q: torch.Tensor) -> torch.Tensor:
-        """``Q: (B, d)`` -> ``T_world_ee: (B, 4, 4)``."""
-        Qn = np.ascontiguousarray(Q.detach().cpu().numpy())
-        keys = [row.tobytes() for row in Qn]
-        idx = np.fromiter((self._index.get(k, -1) for k in keys), dtype=np.int64, count=len(keys))
-        miss = np.flatnonzero(idx < 0)
-        self.hits += len(keys) - len(miss)
-        self.misses += len(miss)
-        if len(miss):
-            if self.rows + len(miss) > self.max_rows:
-                self._index.clear()
-                self._T = self._T[:0]
-                return self(Q)
-            T_new = self.kin.fk(Q[torch.as_tensor(miss, device=Q.device)])
-            base = self.rows
-            for j, i in enumerate(miss):
-                # a key repeated inside this batch maps to its first computed row
-                idx[i] = self._index.setdefault(keys[i], base + j)
-            self._T = torch.cat([self._T, T_new])
-        return self._T[torch.as_tensor(idx, device=self._T.device)]
 
 
 class TaskPlanner:
@@ -223,8 +186,9 @@ class TaskPlanner:
             + 1e-6 * torch.eye(d, dtype=cov_q.dtype, device=cov_q.device))  # (T, d, d)
         self.collision_fn, self.segment_fn = collision_fn, segment_fn
         self.batch_collision_fn = batch_collision_fn
-        self._fk = _FKCache(self.kin, settings.fk_cache_rows)
         self._landmarks: torch.Tensor | None = None  # (Z, 4, 4) kept landmarks, model order
+        self._sensed: dict[str, np.ndarray] = {}  # every sensed landmark's last position (3,)
+        self.growth_pending = False
         # landmark positions (Z, 3) biased samples were made for, and the time steps whose
         # tool-point targets no sampled execution reached there (the arm cannot: 'unreachable')
         self._grown_for: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=64)  # bounded
@@ -255,8 +219,15 @@ class TaskPlanner:
         return self._rng.permutation(np.concatenate(parts, axis=0))
 
     # -- landmarks ------------------------------------------------------------------------
-    def update_landmarks(self, names, T_world_landmarks) -> None:
-        """New sensed landmarks ``names (Z_all,)``, ``(Z_all, 4, 4)``; builds the roadmap on first use."""
+    def update_landmarks(self, names, T_world_landmarks, grow: bool = True) -> None:
+        """New sensed landmarks ``names (Z_all,)``, ``(Z_all, 4, 4)``; builds the roadmap on first use.
+
+        Every landmark that moved (more than 5 mm) counts as a moved obstacle: edges near its old
+        and new place are checked again. With ``grow=False`` a far move of the task landmarks
+        only sets ``growth_pending``; ``grow()`` adds the biased vertices later."""
+        names = [str(n) for n in names]
+        poses = np.asarray(T_world_landmarks, dtype=float).reshape(len(names), 4, 4)
+        self._invalidate_moved(names, poses)
         try:
             lm = self.model.select_landmarks(names, T_world_landmarks)
         except ValueError as e:
@@ -274,16 +245,41 @@ class TaskPlanner:
         if self.roadmap is None:
             self._build()
         else:
-            self._maybe_regrow()
+            self.growth_pending = True
+            if grow:
+                self.grow()
         self.planner.update_landmarks(lm)
 
-    def _step_nll_factory(self, landmarks: torch.Tensor):
-        model, fk = self.model, self._fk
+    def _invalidate_moved(self, names: list[str], poses: np.ndarray) -> None:
+        for name, T in zip(names, poses):
+            pos = T[:3, 3]
+            old = self._sensed.get(name)
+            if self.planner is not None and old is not None and np.all(np.isfinite(pos)) \
+                    and np.linalg.norm(pos - old) > 0.005:
+                r = self.settings.object_radius
+                self.stats["invalidated_edges"] = self.stats.get("invalidated_edges", 0) + \
+                    self.planner.invalidate_region(old, r) + self.planner.invalidate_region(pos, r)
+            if np.all(np.isfinite(pos)):
+                self._sensed[name] = pos.copy()
 
-        def step_nll(Q):
-            Q = torch.as_tensor(Q, dtype=model.dtype, device=model.device)
-            return model.step_nll(Q, fk(Q), landmarks)
-        return step_nll
+    def grow(self) -> bool:
+        """Add biased vertices for the current landmarks if they moved far from every place the
+        roadmap was grown for (``regrow_distance``), and update the reachability verdict.
+        Returns whether vertices were added."""
+        self.growth_pending = False
+        if self.roadmap is None or self._landmarks is None:
+            return False
+        before = self.roadmap.n
+        self._maybe_regrow()
+        return self.roadmap.n > before
+
+    def _keypoints(self, Q) -> np.ndarray:
+        """``Q (N, d) -> (N, K, 3)``: the arm's link origins and the tool point, world frame."""
+        Q = torch.as_tensor(np.asarray(Q, dtype=float), dtype=self.model.dtype, device=self.model.device)
+        with torch.no_grad():
+            origins, T_world_ee = self.kin.frame_origins(Q)  # (N, L, 3), (N, 4, 4)
+            tool = T_world_ee[:, :3, :3] @ self.model.tool.detach() + T_world_ee[:, :3, 3]
+        return torch.cat([origins, tool[:, None]], dim=1).cpu().numpy()
 
     def _add_biased(self, n: int, budget: int | None = None) -> np.ndarray:
         """Add about ``n`` biased vertices (collision-free ones) and their chain edges: a share
@@ -333,17 +329,11 @@ class TaskPlanner:
         self.stats["vertices_added"] = self.roadmap.n
         verdict = self._verdict(self._add_biased(n_bias)) if n_bias else np.zeros(0, dtype=int)
         self._remember(self._landmarks[:, :3, 3].cpu().numpy(), verdict)
-        # step_nll is in Eq. 3 units (log|Sigma| + Mahalanobis^2 = 2 x nll + const), so the
-        # transition term must be -2 log p(t'|t): hand the planner 2 log p as its "log_trans".
-        cost = replace(s.planner.cost, trans_scale=2.0)  # the "log_trans" handed over is 2 log p
-        if s.cost_floor == "per-step":  # step_nll >= s log|Sigma_t| (the Mahalanobis term is >= 0)
-            floor = self.model.logdet_scale * logdet_tensor(self.model.sigma_inv).detach().cpu().numpy()
-            cost = replace(cost, nll_floor=tuple(floor.tolist()))
-        planner_settings = replace(s.planner, cost=cost)
         self.planner = ClosedLoopPlanner(
-            self.roadmap, self._step_nll_factory, 2.0 * self.model.log_trans.detach().cpu().numpy(),
+            self.roadmap, ModelStepCost(self.model), self.model.trans_cost.detach().cpu().numpy(),
             dt=float(self.model.task.dt) if self.model.task else 0.1,
-            vmax=self.kin.velocity.cpu().numpy(), offsets=self.model.offsets, settings=planner_settings)
+            vmax=self.kin.velocity.cpu().numpy(), offsets=self.model.offsets, settings=s.planner,
+            keypoint_fn=self._keypoints)
 
     def _verdict(self, reached: np.ndarray) -> np.ndarray:
         """Task-relevant time steps whose tool-point targets no sampled execution reached

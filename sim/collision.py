@@ -55,7 +55,7 @@ from typing import Callable
 import numpy as np
 import pybullet as p
 
-__all__ = ["CollisionFns", "make_collision_fns", "bisection_order", "joint_levers", "ALWAYS_TOUCHING"]
+__all__ = ["CollisionFns", "make_collision_fns", "sweep_margin", "bisection_order", "joint_levers", "ALWAYS_TOUCHING"]
 
 # Pairs of (link, link) names not checked: Baxter's collision shapes overlap there at (nearly)
 # all configurations (share of 300 uniform random configurations in contact, measured).
@@ -294,6 +294,27 @@ def joint_levers(world) -> np.ndarray:
                 for centre, half, _ in assets.tool_boxes(world.task))
     reach = max(reach, 0.15)  # the gripper's fingers
     return np.cumsum(links[::-1])[::-1] + reach
+
+
+LINK_RADIUS = 0.08  # m: Baxter's arm links and fingers reach this far from the line of joint origins
+
+
+def sweep_margin(task: str, tool_point) -> float:
+    """Metres around the arm's polyline of joint origins and the segment from the gripper to the
+    model's tool point ``(3,)`` (gripper frame) within which the arm and the task's tool lie: the
+    farthest tool-box corner from that segment, or the links' radius, whichever is larger. What
+    ``lfd.planner.PlannerSettings.sweep_margin`` needs for this robot and tool."""
+    from sim import assets
+
+    tool = np.asarray(tool_point, dtype=float).reshape(3)
+    far = 0.0
+    for centre, half, quat in assets.tool_boxes(task):
+        R = np.asarray(p.getMatrixFromQuaternion(quat)).reshape(3, 3)
+        for signs in np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T:
+            x = np.asarray(centre) + R @ (signs * np.asarray(half))
+            s = float(np.clip(x @ tool / max(tool @ tool, 1e-12), 0.0, 1.0))
+            far = max(far, float(np.linalg.norm(x - s * tool)))
+    return max(far + 0.01, LINK_RADIUS)
 
 
 def make_collision_fns(world, obstacles: bool = True, resolution: float = 0.05, ignore=(),

@@ -7,7 +7,8 @@ trained on demand) into ``<models>/<tool>-<env>/``. Scenarios run in parallel wo
 each with its own PyBullet client; finished runs are appended to ``runs.jsonl`` at once, so an
 interrupted evaluation resumes where it stopped. Each run's task-point path (the model's tool
 point in the world frame as executed) is saved beside it, in
-``paths/<variant>_<dwell>_<scenario>.npy``.
+``paths/<variant>_<latency>_<scenario>.npy``. The world runs on while the planner works
+(``sim.execute``, ``EvalSettings.latency``: the wall-clock time of each plan by default).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lfd.stcost import DWELLS
+from sim.execute import parse_latency
 from sim.scenarios import Scenario, draw_scenarios
 
 __all__ = ["Variant", "VARIANTS", "EvalSettings", "TrainingFailed", "run_one", "evaluate", "format_table"]
@@ -71,7 +72,8 @@ class EvalSettings:
     """roadmap_size: PRM* vertices per scenario (None: ``lfd.task_planner.default_vertices`` of
     each model's time steps); seed: base seed of the scenario set;
     n_scenarios; workers: processes; video: write a GIF of the first scenario per variant;
-    dwell: what a plan's time edges charge (``lfd.stcost.CostSettings.dwell``)."""
+    latency: simulated time a plan costs (``sim.execute.ExecSettings.latency``: "measured",
+    "none" or seconds)."""
 
     task: str = "powder"
     n_scenarios: int = 10
@@ -80,20 +82,20 @@ class EvalSettings:
     workers: int = 2
     video: bool = False
     variants: tuple = tuple(v.name for v in VARIANTS)
-    dwell: str = "interval"
+    latency: str = "measured"
 
     def __post_init__(self):
-        if self.dwell not in DWELLS:
-            raise ValueError(f"dwell must be one of {DWELLS}, got {self.dwell!r}")
+        object.__setattr__(self, "latency", str(parse_latency(self.latency)))
 
 
-def planner_settings(roadmap_size: int | None, seed: int, dwell: str = "interval"):
-    """The ``TaskPlannerSettings`` of an evaluation run (and of ``plan.py``'s single plans)."""
+def planner_settings(roadmap_size: int | None, seed: int, task: str, tool_point):
+    """The ``TaskPlannerSettings`` of an evaluation run (and of ``plan.py``'s single plans): the
+    sweep margin of the task's tool around the model's tool point (``sim.collision.sweep_margin``)."""
     from lfd.planner import PlannerSettings
-    from lfd.stcost import CostSettings
     from lfd.task_planner import TaskPlannerSettings
-    return TaskPlannerSettings(n_vertices=roadmap_size, seed=seed,
-                               planner=PlannerSettings(cost=CostSettings(dwell=dwell)))
+    from sim.collision import sweep_margin
+    margin = sweep_margin(task, tool_point.detach().cpu().numpy())
+    return TaskPlannerSettings(n_vertices=roadmap_size, seed=seed, planner=PlannerSettings(sweep_margin=margin))
 
 
 def model_dir_for(models: Path, v: Variant) -> Path:
@@ -126,7 +128,7 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_
 
 
 def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roadmap_size: int | None,
-            video_path: str | None = None, with_path: bool = False, dwell: str = "interval") -> dict:
+            video_path: str | None = None, with_path: bool = False, latency: str = "measured") -> dict:
     """One scenario with one variant, in this process. Returns a JSON-ready dict."""
     import torch
 
@@ -145,27 +147,28 @@ def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roa
         fns = make_collision_fns(world, obstacles=variant.obstacles)
         planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn,
                               batch_collision_fn=fns.batch_collision_fn,
-                              settings=planner_settings(roadmap_size, scenario.seed, dwell))
+                              settings=planner_settings(roadmap_size, scenario.seed, task, model.tool))
         frames = [] if video_path else None
         res = execute_plan(world, planner, scenario,
-                           ExecSettings(pace=EXEC_PACE, frame_every=48 if video_path else 0), frames=frames)
+                           ExecSettings(pace=EXEC_PACE, frame_every=48 if video_path else 0, latency=latency),
+                           frames=frames)
         if video_path and frames:
             import imageio.v2 as imageio
             imageio.mimsave(video_path, frames[::2], duration=0.2, loop=0)
     out = res.to_dict(with_path=with_path)
     out.update(scenario=scenario.seed, variant=variant.name, wall_s=time.perf_counter() - tic,
-               roadmap_size=planner.n_vertices, dwell=dwell, pace=EXEC_PACE,
+               roadmap_size=planner.n_vertices, latency=str(latency), pace=EXEC_PACE,
                roadmap_vertices=planner.roadmap.n if planner.roadmap is not None else 0)
     return out
 
 
 def save_path(out_dir: Path, row: dict, path) -> str:
     """Write a run's task-point path ``(P, 3)`` (world frame, m, one point every
-    ``ExecSettings.record_every`` simulation steps) to ``paths/<variant>_<dwell>_<scenario>.npy``
+    ``ExecSettings.record_every`` simulation steps) to ``paths/<variant>_<latency>_<scenario>.npy``
     under ``out_dir``; returns that name relative to ``out_dir`` (what ``runs.jsonl`` records).
-    The dwell is in the name because a log may keep runs of another setting, which are run again
-    beside them (``evaluate``): each row keeps its own path."""
-    rel = Path("paths") / f"{row['variant']}_{row.get('dwell', 'interval')}_{row['scenario']}.npy"
+    The latency mode is in the name because a log may keep runs of another setting, which are
+    run again beside them (``evaluate``): each row keeps its own path."""
+    rel = Path("paths") / f"{row['variant']}_{row.get('latency', 'none')}_{row['scenario']}.npy"
     (out_dir / rel).parent.mkdir(parents=True, exist_ok=True)
     np.save(out_dir / rel, np.asarray(path, dtype=np.float64).reshape(-1, 3))
     return rel.as_posix()
@@ -262,8 +265,8 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
         for line in text.splitlines():
             try:
                 r = json.loads(line)
-                if (r.get("dwell", "interval") == settings.dwell  # runs of another setting: redone
-                        and r.get("pace") == EXEC_PACE):
+                if (r.get("latency", "none") == settings.latency  # runs of another setting: redone
+                        and r.get("pace") == EXEC_PACE and "dwell" not in r):
                     done[(r["variant"], r["scenario"])] = r
             except (ValueError, KeyError):
                 continue  # a line cut by an interruption
@@ -275,7 +278,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
             video = str(out_dir / f"{settings.task}_{v.name}_scenario{sc.seed}.gif") \
                 if settings.video and i == 0 else None
             jobs.append((settings.task, sc, v, str(model_dir_for(models, v)), settings.roadmap_size, video,
-                         True, settings.dwell))
+                         True, settings.latency))
     total = len(variants) * len(scenarios)
     bar = progress(total=total, initial=total - len(jobs)) if progress else None
     with log.open("a") as fh:
@@ -307,7 +310,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     results = {v.name: summarize([r for (n, s), r in done.items() if n == v.name and s in seeds], v,
                                  learn_s[v.name]) for v in variants}
     payload = {"task": settings.task, "base_seed": settings.seed, "n_scenarios": settings.n_scenarios,
-               "roadmap_size": settings.roadmap_size, "dwell": settings.dwell,
+               "roadmap_size": settings.roadmap_size, "latency": settings.latency,
                "models": {v.name: str(model_dir_for(models, v)) for v in variants}, "variants": results,
                "scenario_set": [sc.to_dict() for sc in scenarios]}
     tmp = out_dir / "results.json.tmp"
@@ -317,7 +320,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
 
 
 def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int | None, gui: bool = False,
-                  execute: bool = False, progress=None, dwell: str = "interval") -> tuple[dict, object, object]:
+                  execute: bool = False, progress=None, latency: str = "measured") -> tuple[dict, object, object]:
     """Build the roadmap in the scenario's world, plan once from home (and optionally execute).
 
     Returns ``(report, plan_result, model)``.
@@ -327,18 +330,18 @@ def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int | None,
     from lfd.task_planner import TaskPlanner
     from sim import layout as L
     from sim.collision import make_collision_fns
-    from sim.execute import execute_plan
+    from sim.execute import ExecSettings, execute_plan
     from sim.world import World
 
     model = TaskModel.load(model_dir)
     model.kin = KinematicModel.from_spec(model.robot, dtype=model.dtype)
-    report = {"scenario": scenario.to_dict(), "dwell": dwell}
+    report = {"scenario": scenario.to_dict(), "latency": str(latency)}
     with World(scenario.task, gui=gui, scenario=scenario.placements) as world:
         fns = make_collision_fns(world, obstacles=True)
         tic = time.perf_counter()
         planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn,
                               batch_collision_fn=fns.batch_collision_fn,
-                              settings=planner_settings(roadmap_size, scenario.seed, dwell))
+                              settings=planner_settings(roadmap_size, scenario.seed, scenario.task, model.tool))
         names, poses = world.sensed_landmarks()
         planner.update_landmarks(names, poses)
         report["roadmap_build_s"] = time.perf_counter() - tic
@@ -347,6 +350,6 @@ def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int | None,
                       waypoints=int(len(res.configurations)), latency_ms=res.latency_s * 1e3,
                       edges_evaluated=res.n_edges_evaluated, roadmap_vertices=planner.roadmap.n)
         if execute and res.ok:
-            run = execute_plan(world, planner, scenario)
+            run = execute_plan(world, planner, scenario, ExecSettings(latency=latency))
             report["execution"] = run.to_dict()
     return report, res, model

@@ -7,15 +7,24 @@ peak joint speeds stay within ``speed`` times the URDF velocity limits and peak 
 within ``accel``; at each time-step transition ``t0 -> t1`` it waits, at least one sampling
 interval, until it has been in step ``t0`` as long as the demonstrations took on average to get
 from ``t0`` to ``t1`` (``lfd.timing.step_clock``: skipped steps keep their time). The path in
-configuration space is the plan's; only its timing is chosen here (``lfd.timing``). Every
-``sense_period`` seconds the executor senses the landmarks; when a task-relevant one has moved more
-than ``replan_threshold`` the planner re-plans from the commanded configuration and the current
-time step, and the rest of the old plan is dropped. Every re-plan's latency is recorded in two parts:
-``replan_ms``, the search alone (``PlanResult.latency_s``, what the paper reports), and
-``replan_update_ms``, the landmark update before it (new step costs, and new biased vertices
-when the landmarks moved far: ``TaskPlanner.update_landmarks``); their sum is the time from
-sensing the move to holding the new plan. ``build_ms`` is this execution's first update (the
-roadmap's construction when the planner is new), which precedes the initial plan's ``initial_ms``.
+configuration space is the plan's; only its timing is chosen here (``lfd.timing``).
+
+The world does not wait for the planner. Every ``sense_period`` seconds the executor senses the
+landmarks; when a task-relevant one has moved more than ``replan_threshold`` the planner is asked
+for a new plan from the commanded configuration and the current time step, sensed at that
+moment. The plan takes ``latency`` of simulated time to arrive: "measured" charges the wall-clock
+time of the landmark update and the search, "none" none (the world is frozen while the planner
+works: deterministic tests), a number that many seconds. Meanwhile the robot goes on along its
+old plan (the bowl may already be elsewhere). When the new plan arrives, the robot retraces the
+waypoints it passed since the request (a motion it has just made) back to the configuration the
+plan starts from, and follows the new plan; while a plan is on its way no new one is asked for.
+After a far move the landmark update answers on the current roadmap and the biased regrowth
+(``TaskPlanner.grow``, seconds) runs as a second re-plan at the next reading, charged the same
+way: the robot executes the first answer while the roadmap grows (anytime). Every re-plan is
+recorded: ``replan_update_ms`` (landmark update or growth), ``replan_ms`` (the search,
+``PlanResult.latency_s``, what the paper reports), ``charged_ms`` (the simulated time it cost).
+``build_ms`` is the first update (the roadmap's construction), before the first plan's
+``initial_ms``; the arm holds at rest while the first plan is made.
 
 Success is the paper's: nothing the arm or tool touches (table, containers, obstacles) and at least
 ``success_fraction`` of the particles inside the bowl once they have settled.
@@ -33,9 +42,23 @@ import pybullet as p
 from lfd.timing import PROFILES, plan_segments, profile_at, step_clock
 from sim import layout as L
 
-__all__ = ["ExecSettings", "PACES", "RunResult", "execute_plan"]
+__all__ = ["ExecSettings", "PACES", "LATENCIES", "RunResult", "execute_plan", "parse_latency"]
 
 PACES = ("demonstrated", "fastest")
+LATENCIES = ("measured", "none")
+
+
+def parse_latency(value) -> str | float:
+    """``"measured"``, ``"none"`` or a fixed latency in seconds (a number, or its text) >= 0."""
+    if isinstance(value, str) and value in LATENCIES:
+        return value
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"latency must be 'measured', 'none' or seconds >= 0, got {value!r}") from None
+    if not (math.isfinite(x) and x >= 0):
+        raise ValueError(f"latency must be 'measured', 'none' or seconds >= 0, got {value!r}")
+    return x
 
 
 @dataclass(frozen=True)
@@ -48,7 +71,9 @@ class ExecSettings:
     between landmark readings; replan_threshold: landmark motion (m) that triggers a re-plan;
     settle_s: time held at the end before particles are counted; success_fraction: particles in the
     bowl needed; force: position-control force (N m); record_every: sim steps between recorded
-    task-point samples; frame_every: sim steps between video frames (0: none)."""
+    task-point samples; frame_every: sim steps between video frames (0: none); latency: how much
+    simulated time a plan costs: "measured" (its wall-clock time, landmark update and growth
+    included), "none" (the world waits: deterministic) or a fixed number of seconds."""
 
     speed: float = 0.5
     accel: float = 2.0
@@ -62,8 +87,10 @@ class ExecSettings:
     record_every: int = 12
     frame_every: int = 0
     max_replans: int = 50
+    latency: str | float = "measured"
 
     def __post_init__(self):
+        object.__setattr__(self, "latency", parse_latency(self.latency))
         if not 0 < self.speed <= 1:
             raise ValueError(f"speed must be in (0, 1], got {self.speed}")
         if self.profile not in PROFILES:
@@ -90,6 +117,9 @@ class RunResult:
     build_ms: float = math.nan  # the first landmark update (the roadmap's construction if new)
     replan_update_ms: list = field(default_factory=list)  # the landmark update before each re-plan
     n_replans: int = 0
+    latency_mode: str = "none"  # ExecSettings.latency of the run
+    charged_ms: list = field(default_factory=list)  # simulated time each re-plan took
+    switches: int = 0  # re-plans that arrived and took over
     plan_statuses: list = field(default_factory=list)
     duration_s: float = 0.0
     task_point_path: list = field(default_factory=list)  # [[x, y, z], ...] world, model tool point
@@ -145,12 +175,54 @@ def _relevant(names, poses, keep) -> np.ndarray:
     return np.asarray(poses)[idx, :3, 3]
 
 
+class _Follower:
+    """The plan being executed: its timed segments, where the robot is along them, and the trail
+    of waypoints passed since a mark (to retrace them when a plan made earlier arrives)."""
+
+    def __init__(self, segs, step: int, profile: str):
+        self.segs, self.i, self.t, self.profile = segs, 0, 0.0, profile
+        self.entered = step  # sim step at which the current time step began
+        self.t_now = segs[0][3] if segs else 0
+        self.trail: list[np.ndarray] | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.i >= len(self.segs)
+
+    def advance(self, step: int) -> tuple[np.ndarray, np.ndarray]:
+        """One simulation step along the plan: ``(q_cmd, qdot)``."""
+        q0, q1, dur, t_seg = self.segs[self.i]
+        if t_seg != self.t_now:
+            self.entered = step
+        self.t_now = t_seg
+        self.t += L.SIM_DT
+        a = min(1.0, self.t / dur) if dur > 0 else 1.0
+        prog, rate = profile_at(a, self.profile)
+        q_cmd = q0 + prog * (q1 - q0)
+        qdot = rate * (q1 - q0) / dur if dur > 0 and a < 1.0 else np.zeros_like(q0)
+        if a >= 1.0:
+            self.i, self.t = self.i + 1, 0.0
+            if self.trail is not None and np.any(q1 != q0):
+                self.trail.append(q1)
+        return q_cmd, qdot
+
+
+def _latency_s(mode, wall_s: float) -> float:
+    """Simulated seconds a plan that took ``wall_s`` of wall-clock time is charged."""
+    if mode == "measured":
+        return wall_s
+    if mode == "none":
+        return 0.0
+    return float(mode)
+
+
 def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = None,
                  q_start=None, frames: list | None = None) -> RunResult:
     """Run the task closed-loop in ``world`` with ``planner`` (an ``lfd.task_planner.TaskPlanner``).
 
     ``scenario`` (``sim.scenarios.Scenario``) supplies the mid-task bowl move; ``frames``, when a
-    list, receives rendered RGB frames every ``settings.frame_every`` steps.
+    list, receives rendered RGB frames every ``settings.frame_every`` steps. The world runs on
+    while the planner works (``settings.latency``; see the module docstring).
     """
     s = settings or ExecSettings()
     model = planner.model
@@ -160,12 +232,28 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
     keep = model.landmark_names
     clock = (step_clock(model.log_trans.detach().cpu().numpy(), model.offsets, dt)
              if s.pace == "demonstrated" else None)  # (T,)
-    result = RunResult()
+    accel = s.accel if s.profile == "min-jerk" else None
+    frozen = s.latency == "none"
+    result = RunResult(latency_mode=str(s.latency))
     q_cmd = np.asarray(L.HOME_Q if q_start is None else q_start, dtype=float)
+    qdot = np.zeros_like(q_cmd)
     world.set_q(q_cmd)
     world.respawn_particles()
     world.step(int(0.3 / L.SIM_DT))  # let the particles settle in the tool
     contacts = _ContactLog(world)
+    step = 0
+
+    def sim_step() -> None:
+        nonlocal step
+        world.command_q(q_cmd, force=s.force, qdot=qdot)
+        world.step(1)
+        step += 1
+        contacts.poll(step * L.SIM_DT)
+        if step % s.record_every == 0:
+            T = world.T_world_gripper()
+            result.task_point_path.append((T[:3, :3] @ tool + T[:3, 3]).round(5).tolist())
+        if frames is not None and s.frame_every and step % s.frame_every == 0:
+            frames.append(world.render(480, 360))
 
     names, poses = world.sensed_landmarks()
     tic = time.perf_counter()
@@ -178,59 +266,91 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
     if not res.ok:
         result.reason = f"no initial plan: {res.status} ({res.message})"
         return result
+    for _ in range(int(round(_latency_s(s.latency, res.latency_s) / L.SIM_DT))):
+        sim_step()  # the arm holds while the first plan is made (the roadmap was built before)
     planned_at = _relevant(names, poses, keep)
-    accel = s.accel if s.profile == "min-jerk" else None
-    segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed, clock, accel)
+
+    def timed(configurations, time_steps, elapsed=0.0):
+        return _Follower(plan_segments(configurations, time_steps, vmax, dt, s.speed, clock, accel,
+                                       elapsed=elapsed), step, s.profile)
+
+    follow = timed(res.configurations, res.time_steps)
     sense_every = max(1, int(round(s.sense_period / L.SIM_DT)))
     moved = scenario is None or scenario.bowl_after is None
-    step, t_now, seg_i, seg_t = 0, 0, 0, 0.0
-    entered = 0  # sim step at which the current time step began
-    while seg_i < len(segs):
-        q0, q1, dur, t_seg = segs[seg_i]
-        if t_seg != t_now:
-            entered = step
-        t_now = t_seg
-        seg_t += L.SIM_DT
-        a = min(1.0, seg_t / dur) if dur > 0 else 1.0
-        prog, rate = profile_at(a, s.profile)
-        q_cmd = q0 + prog * (q1 - q0)
-        qdot = rate * (q1 - q0) / dur if dur > 0 and a < 1.0 else np.zeros_like(q0)
-        world.command_q(q_cmd, force=s.force, qdot=qdot)
-        world.step(1)
-        step += 1
-        contacts.poll(step * L.SIM_DT)
-        if step % s.record_every == 0:
-            T = world.T_world_gripper()
-            result.task_point_path.append((T[:3, :3] @ tool + T[:3, 3]).round(5).tolist())
-        if frames is not None and s.frame_every and step % s.frame_every == 0:
-            frames.append(world.render(480, 360))
-        if a >= 1.0:
-            seg_i, seg_t = seg_i + 1, 0.0
-        if step % sense_every:
+    pending = None  # a plan on its way: (arrival step, PlanResult, elapsed in its first step)
+
+    def replan(work) -> None:
+        """Run ``work() -> (PlanResult | None, update_s)`` now (wall clock) and let its plan
+        arrive after the charged latency; the robot follows the current plan meanwhile."""
+        nonlocal pending
+        t_elapsed = (step - follow.entered) * L.SIM_DT
+        tic = time.perf_counter()
+        res, update_s = work()
+        wall = time.perf_counter() - tic
+        if res is None:
+            return
+        result.n_replans += 1
+        result.replan_update_ms.append(update_s * 1e3)
+        result.replan_ms.append(res.latency_s * 1e3)
+        result.plan_statuses.append(res.status)
+        result.edges_evaluated.append(res.n_edges_evaluated)
+        charged = _latency_s(s.latency, wall)
+        result.charged_ms.append(charged * 1e3)
+        if res.ok:
+            follow.trail = [q_cmd.copy()]
+            pending = (step + int(round(charged / L.SIM_DT)), res, t_elapsed)
+
+    def on_move(names, poses):
+        def work():
+            tic = time.perf_counter()
+            planner.update_landmarks(names, poses, grow=frozen)
+            update_s = time.perf_counter() - tic
+            return planner.plan(q_cmd, follow.t_now), update_s
+        replan(work)
+
+    def on_growth():
+        def work():
+            tic = time.perf_counter()
+            grew = planner.grow()
+            update_s = time.perf_counter() - tic
+            return (planner.plan(q_cmd, follow.t_now) if grew else None), update_s
+        replan(work)
+
+    while not follow.done or pending is not None:
+        if pending is not None and step >= pending[0]:
+            _, new, elapsed = pending
+            pending = None
+            # back along the waypoints passed since the plan was asked for, then the new plan
+            back = [q_cmd, *follow.trail[:0:-1], new.configurations[0]]
+            back = [q for i, q in enumerate(back) if i == 0 or np.any(q != back[i - 1])]
+            confs = np.concatenate([np.asarray(back[:-1]).reshape(-1, len(q_cmd)), new.configurations])
+            steps = np.concatenate([np.full(len(back) - 1, new.time_steps[0]), new.time_steps])
+            follow = timed(confs, steps, elapsed)
+            result.switches += 1
+            if follow.done:
+                break
+        if follow.done:  # the old plan ended before the new one arrived: hold
+            qdot = np.zeros_like(q_cmd)
+        else:
+            q_cmd, qdot = follow.advance(step)
+        sim_step()
+        if step % sense_every or pending is not None:
             continue
-        if not moved and t_now >= scenario.move_at_step:
+        if not moved and follow.t_now >= scenario.move_at_step:
             world.move_object("bowl", scenario.bowl_after)
             moved = True
         names, poses = world.sensed_landmarks()
         now = _relevant(names, poses, keep)
         if now.shape == planned_at.shape and np.abs(now - planned_at).max() <= s.replan_threshold:
+            if getattr(planner, "growth_pending", False) and result.n_replans < s.max_replans:
+                on_growth()  # anytime: the roadmap grows for the new place, then a better plan
             continue
         if result.n_replans >= s.max_replans:
             continue
-        tic = time.perf_counter()
-        planner.update_landmarks(names, poses)
-        result.replan_update_ms.append((time.perf_counter() - tic) * 1e3)
-        res = planner.plan(q_cmd, t_now)
-        result.n_replans += 1
-        result.replan_ms.append(res.latency_s * 1e3)
-        result.plan_statuses.append(res.status)
-        result.edges_evaluated.append(res.n_edges_evaluated)
         planned_at = now
-        if res.ok:
-            segs = plan_segments(res.configurations, res.time_steps, vmax, dt, s.speed, clock, accel,
-                                 elapsed=(step - entered) * L.SIM_DT)
-            seg_i, seg_t = 0, 0.0
+        on_move(names, poses)
     settle = int(s.settle_s / L.SIM_DT)
+    qdot = np.zeros_like(q_cmd)
     for k in range(settle):
         world.step(1)
         if k % 8 == 0:

@@ -1,0 +1,308 @@
+"""Edge state of the spatiotemporal roadmap: costs and collision validity, in one owner.
+
+``EdgeStore`` keeps, for every edge ``e = (u, w)`` of a ``lfd.roadmap.Roadmap`` (row = edge id):
+
+* its traversal time ``tau[e] = max_j |q_w - q_u|_j / vmax_j`` at the joint velocity limits and
+  its ``m[e] = max(1, ceil(tau / quad_dt))`` quadrature sub-intervals, whose ``m - 1`` interior
+  configurations are prepared once by the step cost (``lfd.stepcost``: FK and everything else
+  that does not depend on the landmarks);
+* its cost at every time step, the line integral of the paper's Sec. V-B over the motion::
+
+      W[e, t] = (tau / dt) * (stay[t] + mean_s ell(q(s), t))
+
+  (``stay[t] = -log p(t | t)`` in the step cost's units, the mean by the trapezoid rule over the
+  ``m + 1`` nodes), computed for all edges and steps in a few array operations when first asked
+  for after new landmarks;
+* its collision state: ``UNKNOWN`` (not checked, or checked before a nearby object moved),
+  ``FREE`` or ``BLOCKED``.
+
+One method changes what is known: ``invalidate(landmarks=..., region=...)``. New landmarks make
+every cost stale (recomputed in one batch on the next ``costs()``); a region (a ball around a
+moved object's old or new place) resets the collision state of the edges whose swept box meets
+it. The swept box of an edge bounds the ``keypoint_fn`` points (e.g. link origins and the tool
+point) at all its quadrature nodes, grown by ``sweep_margin`` (link radius, tool extent) and
+half a node spacing. ``check(eids)`` settles unknown edges with the roadmap's ``segment_fn``.
+
+Vertex step costs ``ell (n, T)`` come with the edge costs: a time edge ``(v, t) -> (v, t + k)``
+costs ``trans[t, k] + ell[v, t + k]`` (``lfd.stsearch``).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+import torch
+
+from lfd.roadmap import Roadmap
+from lfd.stepcost import StepCost
+
+__all__ = ["EdgeStore", "UNKNOWN", "FREE", "BLOCKED"]
+
+UNKNOWN, FREE, BLOCKED = 0, 1, 2
+
+
+def _cat(parts: list[tuple[torch.Tensor, ...]]) -> tuple[torch.Tensor, ...] | None:
+    parts = [p for p in parts if p is not None]
+    if not parts:
+        return None
+    return tuple(torch.cat(xs) for xs in zip(*parts)) if len(parts) > 1 else parts[0]
+
+
+def interior_points(Qa: np.ndarray, Qb: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Interior quadrature nodes of segments ``Qa -> Qb`` (E, d) with ``m (E,)`` sub-intervals:
+    ``(P, d)`` points, edge by edge, and ``first (E,)``: each edge's first row (``m - 1`` rows each)."""
+    n_in = m - 1
+    first = np.cumsum(n_in) - n_in
+    edge = np.repeat(np.arange(len(m)), n_in)
+    frac = (np.arange(len(edge)) - first[edge] + 1) / m[edge]
+    return Qa[edge] + (Qb[edge] - Qa[edge]) * frac[:, None], first
+
+
+def trapezoid_costs(ell_a: np.ndarray, ell_b: np.ndarray, ell_in: np.ndarray, first: np.ndarray,
+                    m: np.ndarray, tau: np.ndarray, stay: np.ndarray, dt: float) -> np.ndarray:
+    """``(E, T)`` edge costs from the step costs at the ends ``(E, T)`` and interior nodes
+    ``ell_in (P, T)`` (edge by edge from ``first``), ``m``/``tau (E,)``, ``stay (T,)``."""
+    sums = np.zeros_like(ell_a)
+    has = m > 1
+    if has.any():
+        sums[has] = np.add.reduceat(ell_in, first[has], axis=0)
+    mean = (0.5 * (ell_a + ell_b) + sums) / m[:, None]
+    with np.errstate(invalid="ignore"):
+        W = (tau / dt)[:, None] * (stay[None, :] + mean)
+    W[np.isnan(W)] = np.inf  # tau = 0 at a step that forbids staying
+    return W
+
+
+class EdgeStore:
+    """Costs and collision states of ``roadmap``'s edges (see the module docstring).
+
+    Parameters
+    ----------
+    roadmap : the Roadmap (it may grow; ``sync`` picks new vertices and edges up).
+    step_cost : a ``lfd.stepcost.StepCost``.
+    stay : (T,) cost of one sampling interval spent in step t (``-log p(t | t)``, inf = forbidden).
+    dt : sampling interval (s); vmax : (d,) joint velocity limits; quad_dt : time between
+    quadrature nodes (default dt).
+    keypoint_fn : optional ``Q (N, d) -> (N, K, 3)`` points swept by the robot (for ``region``).
+    sweep_margin : m added around the keypoints' box of an edge.
+    """
+
+    def __init__(self, roadmap: Roadmap, step_cost: StepCost, stay, dt: float, vmax, quad_dt: float | None = None,
+                 keypoint_fn: Callable | None = None, sweep_margin: float = 0.15):
+        self.roadmap, self.step_cost = roadmap, step_cost
+        self.stay = np.asarray(stay, dtype=float).reshape(-1)
+        self.T = len(self.stay)
+        self.dt = float(dt)
+        self.vmax = np.asarray(vmax, dtype=float).reshape(-1)
+        if not self.dt > 0 or self.vmax.shape != (roadmap.d,) or not np.all(self.vmax > 0):
+            raise ValueError(f"Expected dt > 0 and vmax ({roadmap.d},) > 0, got {dt}, {vmax}")
+        self.quad_dt = float(quad_dt or dt)
+        self.keypoint_fn, self.sweep_margin = keypoint_fn, float(sweep_margin)
+        self.ends = np.empty((0, 2), dtype=np.int64)  # (E, 2)
+        self.tau = np.empty(0)
+        self.m = np.empty(0, dtype=np.int64)
+        self.state = np.empty(0, dtype=np.int8)
+        self._first = np.empty(0, dtype=np.int64)  # (E,) first interior row of each edge
+        self._vparts: tuple | None = None
+        self._pparts: tuple | None = None
+        self._n_points = 0
+        self._box = np.empty((0, 2, 3))  # (E, 2, 3) swept boxes (with keypoint_fn)
+        self._vkey = np.empty((0, 0, 3))  # (n, K, 3) vertex keypoints
+        self._pkey = np.empty((0, 0, 3))  # (P, K, 3) interior-node keypoints
+        self._screened = np.empty(0, dtype=bool)  # (E,) interior nodes point-checked since the last reset
+        self._vscreened = np.empty(0, dtype=bool)  # (n,) vertex checked since a nearby object moved
+        self._landmarks = None
+        self._costs: tuple[np.ndarray, np.ndarray] | None = None
+        self.counters = {"cost_updates": 0, "segment_checks": 0, "blocked": 0, "invalidated": 0,
+                         "screened_points": 0}
+        self.sync()
+
+    # ------------------------------------------------------------------ structure
+    @property
+    def n_vertices(self) -> int:
+        return 0 if self._vparts is None else len(self._vparts[0])
+
+    def sync(self) -> None:
+        """Take in the vertices and edges the roadmap gained since the last call."""
+        rm = self.roadmap
+        V = rm.vertices
+        n0 = self.n_vertices
+        if rm.n > n0:
+            self._vparts = _cat([self._vparts, self.step_cost.prepare(V[n0:])])
+            self._vscreened = np.concatenate([self._vscreened, np.ones(rm.n - n0, dtype=bool)])  # checked on insertion
+            if self.keypoint_fn is not None:
+                k = np.asarray(self.keypoint_fn(V[n0:]), dtype=float)
+                self._vkey = k if n0 == 0 else np.concatenate([self._vkey, k])
+            self._costs = None
+        ends = rm.edge_array()
+        e0 = len(self.ends)
+        if len(ends) == e0:
+            return
+        new = ends[e0:]
+        Qa, Qb = V[new[:, 0]], V[new[:, 1]]
+        tau = np.max(np.abs(Qb - Qa) / self.vmax, axis=1)
+        m = np.maximum(1, np.ceil(tau / self.quad_dt - 1e-9)).astype(np.int64)
+        P, first = interior_points(Qa, Qb, m)
+        state = np.zeros(len(new), dtype=np.int8)
+        if len(P):  # coarse screen: an edge with a colliding quadrature node is blocked for sure
+            state[np.repeat(np.arange(len(new)), m - 1)[self.roadmap.in_collision(P)]] = BLOCKED
+            self.counters["screened_points"] += len(P)
+        self._pparts = _cat([self._pparts, self.step_cost.prepare(P)])
+        self._first = np.concatenate([self._first, first + self._n_points])
+        self._n_points += len(P)
+        if self.keypoint_fn is not None:
+            kp = np.asarray(self.keypoint_fn(P), dtype=float).reshape(len(P), self._vkey.shape[1], 3)
+            self._pkey = kp if len(self._pkey) == 0 else np.concatenate([self._pkey, kp])
+            self._box = np.concatenate([self._box, self._boxes(new, kp, first, m)])
+        self._screened = np.concatenate([self._screened, np.ones(len(new), dtype=bool)])
+        self.ends, self.tau, self.m = np.concatenate([self.ends, new]), np.concatenate([self.tau, tau]), \
+            np.concatenate([self.m, m])
+        self.state = np.concatenate([self.state, state])
+        self._costs = None
+
+    def _half_spacing(self, ends: np.ndarray, m: np.ndarray) -> np.ndarray:
+        """``(E',)`` half the largest keypoint displacement between consecutive quadrature nodes
+        (from the end vertices: the keypoints' chord over ``m`` sub-intervals): how far a swept
+        point can be from the nearest node."""
+        ka, kb = self._vkey[ends[:, 0]], self._vkey[ends[:, 1]]
+        return 0.5 * np.linalg.norm(kb - ka, axis=-1).max(1) / m
+
+    def _boxes(self, new: np.ndarray, kp: np.ndarray, first: np.ndarray, m: np.ndarray) -> np.ndarray:
+        """``(E', 2, 3)`` swept boxes of new edges (``kp (P, K, 3)``: their interior keypoints)."""
+        ka, kb = self._vkey[new[:, 0]], self._vkey[new[:, 1]]  # (E', K, 3)
+        lo, hi = np.minimum(ka, kb).min(1), np.maximum(ka, kb).max(1)  # (E', 3)
+        if len(kp):
+            has = m > 1
+            lo[has] = np.minimum(lo[has], np.minimum.reduceat(kp.min(1), first[has], axis=0))
+            hi[has] = np.maximum(hi[has], np.maximum.reduceat(kp.max(1), first[has], axis=0))
+        grow = self.sweep_margin + self._half_spacing(new, m)
+        return np.stack([lo - grow[:, None], hi + grow[:, None]], axis=1)
+
+    # ------------------------------------------------------------------ state changes
+    def invalidate(self, landmarks=None, region: tuple | None = None) -> int:
+        """The one way edge knowledge becomes stale.
+
+        ``landmarks``: new landmark poses (whatever the step cost takes): every cost is stale.
+        ``region``: ``(centre (3,), radius)`` in the keypoints' frame: the edges whose swept box
+        meets that ball become ``UNKNOWN`` (needs ``keypoint_fn``; without it, every edge).
+        Returns the number of edges whose collision state was reset.
+        """
+        if landmarks is not None:
+            self._landmarks, self._costs = landmarks, None
+        if region is None:
+            return 0
+        c, r = np.asarray(region[0], dtype=float).reshape(3), float(region[1])
+        if self.keypoint_fn is None:
+            near = np.ones(len(self.state), dtype=bool)
+        else:
+            gap = np.maximum(np.maximum(self._box[:, 0] - c, c - self._box[:, 1]), 0.0)
+            near = np.linalg.norm(gap, axis=1) <= r  # box test, then the arm's polyline at every node
+            near[near] = self._polyline_near(np.flatnonzero(near), c, r)
+        reset = near & ((self.state != UNKNOWN) | self._screened)
+        self.state[reset] = UNKNOWN
+        self._screened[reset] = False
+        self._vscreened[self.ends[near].ravel()] = False
+        self.counters["invalidated"] += int(reset.sum())
+        return int(reset.sum())
+
+    def _polyline_near(self, eids: np.ndarray, c: np.ndarray, r: float) -> np.ndarray:
+        """``(len(eids),)`` bool: some node of the edge has its keypoint polyline (the arm's links,
+        then the tool) within ``r`` + ``sweep_margin`` + half a node spacing of ``c``."""
+        u, w, m = self.ends[eids, 0], self.ends[eids, 1], self.m[eids]
+        first = self._first[eids]
+        cnt = m - 1
+        owner = np.repeat(np.arange(len(eids)), cnt)
+        pidx = np.repeat(first, cnt) + np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        K = np.concatenate([self._vkey[u], self._vkey[w], self._pkey[pidx]])  # (N, K, 3)
+        who = np.concatenate([np.arange(len(eids)), np.arange(len(eids)), owner])
+        a, b = K[:, :-1], K[:, 1:]  # (N, K-1, 3) link segments
+        ab = b - a
+        s = np.clip(((c - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0.0, 1.0)
+        dist = np.linalg.norm(a + s[..., None] * ab - c, axis=-1).min(1)  # (N,)
+        best = np.full(len(eids), np.inf)
+        np.minimum.at(best, who, dist)
+        return best <= r + self.sweep_margin + self._half_spacing(self.ends[eids], m)
+
+    def screen(self, eids) -> int:
+        """Point-check the interior quadrature nodes of the unknown, unscreened edges among
+        ``eids`` in one batch (``roadmap.in_collision``); those with a colliding node become
+        ``BLOCKED``. A cheap first look near a collision; the segment check stays the final
+        word. Returns how many were blocked."""
+        eids = np.unique(np.asarray(eids, dtype=np.int64))
+        eids = eids[(self.state[eids] == UNKNOWN) & ~self._screened[eids]]
+        self._screened[eids] = True
+        verts = np.unique(self.ends[eids])
+        verts = verts[~self._vscreened[verts]]
+        if len(verts):  # a vertex an object moved onto blocks every edge it has
+            self._vscreened[verts] = True
+            bad = verts[self.roadmap.in_collision(self.roadmap.vertices[verts])]
+            if len(bad):
+                self.set_blocked(np.flatnonzero(np.isin(self.ends, bad).any(axis=1)))
+                eids = eids[self.state[eids] == UNKNOWN]
+        m = self.m[eids]
+        eids, m = eids[m > 1], m[m > 1]
+        if len(eids) == 0:
+            return 0
+        V = self.roadmap.vertices
+        P, _ = interior_points(V[self.ends[eids, 0]], V[self.ends[eids, 1]], m)
+        self.counters["screened_points"] += len(P)
+        hit = np.zeros(len(eids), dtype=bool)
+        np.logical_or.at(hit, np.repeat(np.arange(len(eids)), m - 1), self.roadmap.in_collision(P))
+        self.set_blocked(eids[hit])
+        return int(hit.sum())
+
+    def set_blocked(self, eids) -> None:
+        """Mark edges as colliding (e.g. every edge of a vertex found in collision)."""
+        eids = np.asarray(eids, dtype=np.int64)
+        self.counters["blocked"] += int((self.state[eids] != BLOCKED).sum())
+        self.state[eids] = BLOCKED
+
+    def check(self, eids) -> np.ndarray:
+        """Settle the collision state of ``eids`` (unknown ones checked now); ``(len,)`` bool free."""
+        eids = np.asarray(eids, dtype=np.int64).reshape(-1)
+        V = self.roadmap.vertices
+        for e in eids[self.state[eids] == UNKNOWN].tolist():
+            u, w = self.ends[e]
+            self.counters["segment_checks"] += 1
+            hit = self.roadmap.segment_collides(V[u], V[w])
+            self.state[e] = BLOCKED if hit else FREE
+            self.counters["blocked"] += int(hit)
+        return self.state[eids] == FREE
+
+    # ------------------------------------------------------------------ costs
+    @property
+    def has_landmarks(self) -> bool:
+        return self._landmarks is not None
+
+    def costs(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(ell (n, T), W (E, T))`` for the current landmarks, computed now if stale.
+        May raise ``LookupError`` or ``lfd.stepcost.CostError`` from the step cost."""
+        if self._costs is None:
+            if self._landmarks is None:
+                raise LookupError("no landmarks yet: call invalidate(landmarks=...) first")
+            ell = self.step_cost.evaluate(self._vparts, self._landmarks)
+            ell_in = (self.step_cost.evaluate(self._pparts, self._landmarks) if self._n_points
+                      else np.zeros((0, self.T)))
+            u, w = self.ends[:, 0], self.ends[:, 1]
+            W = trapezoid_costs(ell[u], ell[w], ell_in, self._first, self.m, self.tau, self.stay, self.dt)
+            self._costs = (ell, W)
+            self.counters["cost_updates"] += 1
+        return self._costs
+
+    def segment_costs(self, q: np.ndarray, Qb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Costs of motions not in the roadmap, from ``q (d,)`` to each of ``Qb (k, d)``, for the
+        current landmarks: ``(ell_q (T,), W (k, T))`` (symmetric: also the cost back to ``q``)."""
+        if self._landmarks is None:
+            raise LookupError("no landmarks yet: call invalidate(landmarks=...) first")
+        q = np.asarray(q, dtype=float).reshape(1, -1)
+        Qb = np.asarray(Qb, dtype=float).reshape(-1, q.shape[1])
+        Qa = np.broadcast_to(q, Qb.shape)
+        tau = np.max(np.abs(Qb - Qa) / self.vmax, axis=1)
+        m = np.maximum(1, np.ceil(tau / self.quad_dt - 1e-9)).astype(np.int64)
+        P, first = interior_points(Qa, Qb, m)
+        ell = self.step_cost.evaluate(self.step_cost.prepare(np.concatenate([q, Qb, P])), self._landmarks)
+        k = len(Qb)
+        W = trapezoid_costs(np.broadcast_to(ell[0], (k, self.T)), ell[1:k + 1], ell[k + 1:], first, m, tau,
+                            self.stay, self.dt)
+        return ell[0], W

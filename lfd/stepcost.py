@@ -1,0 +1,131 @@
+"""Step costs for the planner, split so that a landmark move costs milliseconds (paper Sec. V-B).
+
+The planner's cost of holding configuration ``q`` at time step ``t`` is ``ell(q, t) >= 0``, the
+learned negative log-likelihood in Eq. 3 units less its per-step floor (``lfd.model``). Paths
+touch the same configurations (roadmap vertices and the quadrature points of edges) before and
+after a landmark moves; only the landmarks change. A ``StepCost`` therefore has two stages:
+
+* ``prepare(Q: (N, d)) -> parts``: everything that does not depend on the landmarks, once per
+  configuration (FK and the joint part of the features), a tuple of tensors with leading
+  dimension ``N`` (parts of several calls are concatenated with ``torch.cat``);
+* ``evaluate(parts, landmarks) -> (N, T)`` float64 numpy: the costs for these landmarks; may
+  raise ``LookupError`` when a needed landmark is missing.
+
+``ModelStepCost`` (a learned ``TaskModel``). With the features ``f = [q; x]`` (Eq. 2), ``x`` the
+tool point in the virtual landmark frame, and ``S_t = sigma_inv_t = [S_q | S_x]`` split into its
+joint and task columns, the residual of Eq. 3 is ``r_t = a_t + S_x,t y_t`` with
+``a_t = S_q,t (q - mu_q,t)`` (landmark-free) and ``y_t = x - mu_x,t``, so::
+
+    |r_t|^2 = alpha_t + 2 beta_t . y_t + y_t^T G_t y_t,
+    alpha_t = |a_t|^2,  beta_t = S_x,t^T a_t,  G_t = S_x,t^T S_x,t.
+
+``alpha (N, T)``, ``beta (N, T, 3)`` and the world tool point ``p (N, 3)`` are prepared; a landmark
+move recomputes ``x = A p + b`` (``K_virt^-1``, an affine map) and the 3x3 quadratic form: about
+15 flops per configuration and step instead of FK plus an ``F x F`` triangular product.
+
+``CallableStepCost`` adapts any ``factory(landmarks) -> step_nll(Q: (N, d)) -> (N, T)`` (a toy
+cost, a user's own model) with a known lower bound ``floor`` (one number or ``(T,)``) subtracted.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Protocol
+
+import numpy as np
+import torch
+
+from lfd.model import TaskModel
+
+__all__ = ["StepCost", "ModelStepCost", "CallableStepCost", "CostError"]
+
+
+class CostError(ValueError):
+    """A step cost returned something unusable (wrong shape, NaN, below its floor)."""
+
+
+class StepCost(Protocol):
+    T: int
+
+    def prepare(self, Q: np.ndarray) -> tuple[torch.Tensor, ...]: ...
+
+    def evaluate(self, parts: tuple[torch.Tensor, ...], landmarks) -> np.ndarray: ...
+
+
+def _checked(out, n: int, T: int, name: str) -> np.ndarray:
+    out = np.asarray(out.detach().cpu() if torch.is_tensor(out) else out, dtype=float)
+    if out.shape != (n, T):
+        raise CostError(f"{name} must return shape ({n}, {T}), got {out.shape}")
+    if np.isnan(out).any():
+        raise CostError(f"{name} returned NaN")
+    return out
+
+
+class ModelStepCost:
+    """The Mahalanobis term of Eq. 3 of a ``TaskModel`` (its ``step_nll`` less ``s log|Sigma_t|``).
+
+    ``max_batch`` bounds the rows prepared at once (memory: ``max_batch * T * F`` numbers).
+    Tensors live on the model's dtype and device; ``evaluate`` returns float64 numpy.
+    """
+
+    def __init__(self, model: TaskModel, max_batch: int = 8192):
+        self.model, self.max_batch = model, int(max_batch)
+        S = model.sigma_inv.detach()  # (T, F, F)
+        mu = model.mu.detach()  # (T, F)
+        self.T, F = mu.shape
+        self.d = F - 3
+        self._S_q, self._S_x = S[:, :, :self.d], S[:, :, self.d:]  # (T, F, d), (T, F, 3)
+        self._mu_q, self._mu_x = mu[:, :self.d], mu[:, self.d:]  # (T, d), (T, 3)
+        self._G = self._S_x.transpose(1, 2) @ self._S_x  # (T, 3, 3)
+        self._tool = model.tool.detach()  # (3,)
+
+    def prepare(self, Q) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``Q (N, d)`` -> ``p (N, 3)`` world tool point, ``alpha (N, T)``, ``beta (N, T, 3)``."""
+        m = self.model
+        Q = torch.as_tensor(np.asarray(Q, dtype=float), dtype=m.dtype, device=m.device).reshape(-1, self.d)
+        ps, alphas, betas = [], [], []
+        with torch.no_grad():
+            for Qb in torch.split(Q, self.max_batch):
+                T_world_ee = m.kin.fk(Qb)  # (B, 4, 4)
+                ps.append(T_world_ee[:, :3, :3] @ self._tool + T_world_ee[:, :3, 3])
+                a = torch.einsum("tfd,btd->btf", self._S_q, Qb[:, None, :] - self._mu_q[None])  # (B, T, F)
+                alphas.append((a * a).sum(-1))
+                betas.append(torch.einsum("tfi,btf->bti", self._S_x, a))
+        if not ps:
+            z = Q.new_zeros
+            return z(0, 3), z(0, self.T), z(0, self.T, 3)
+        return torch.cat(ps), torch.cat(alphas), torch.cat(betas)
+
+    def evaluate(self, parts, landmarks) -> np.ndarray:
+        """``(N, T)`` Mahalanobis terms for ``landmarks (Z, 4, 4)`` (the model's kept ones)."""
+        p, alpha, beta = parts
+        K = self.model.K_virt_inv(landmarks).detach()  # (4, 4)
+        with torch.no_grad():
+            x = p @ K[:3, :3].T + K[:3, 3]  # (N, 3)
+            y = x[:, None, :] - self._mu_x[None]  # (N, T, 3)
+            Gy = torch.einsum("tij,ntj->nti", self._G, y)
+            out = alpha + ((2.0 * beta + Gy) * y).sum(-1)
+        return _checked(out.clamp_min(0.0), len(p), self.T, "ModelStepCost")
+
+
+class CallableStepCost:
+    """``factory(landmarks) -> step_nll``, ``step_nll(Q (N, d)) -> (N, T)``, less ``floor``.
+
+    ``floor``: a lower bound of ``step_nll`` (one number or ``(T,)``); a value below it raises
+    ``CostError`` (the planner needs non-negative costs). ``factory`` may raise ``LookupError``.
+    """
+
+    def __init__(self, factory: Callable, T: int, floor=0.0):
+        self.factory, self.T = factory, int(T)
+        self.floor = np.broadcast_to(np.asarray(floor, dtype=float), (self.T,)).copy()
+        if not np.isfinite(self.floor).all():
+            raise ValueError(f"floor must be finite, got {floor!r}")
+
+    def prepare(self, Q) -> tuple[torch.Tensor]:
+        return (torch.as_tensor(np.array(Q, dtype=float)).reshape(len(Q), -1),)
+
+    def evaluate(self, parts, landmarks) -> np.ndarray:
+        (Q,) = parts
+        out = _checked(self.factory(landmarks)(Q), len(Q), self.T, "step_nll") - self.floor
+        if (out < -1e-9 * np.maximum(1.0, np.abs(self.floor))).any():
+            raise CostError(f"step_nll went below its floor by {-out.min():.3g}: floor is not a lower bound")
+        return np.maximum(out, 0.0)

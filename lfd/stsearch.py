@@ -1,0 +1,219 @@
+"""Search of the spatiotemporal roadmap (paper Sec. V-A, Fig. 3; Sec. V-B).
+
+The product graph of the roadmap and the task's time steps has a node ``(v, t)`` per vertex and
+step and two kinds of edges:
+
+* time edges ``(v, t) -> (v, t + k)`` for the permitted offsets ``k > 0``, cost
+  ``trans[t, k] + ell[v, t + k]`` (``trans[t, k] = -log p(t + k | t)`` in the step cost's units);
+* spatial edges ``(a, t) -> (b, t)`` for the directed edges ``a -> b`` of a ``SearchGraph`` (both
+  directions of every roadmap edge not known to collide, plus one-way edges of temporary
+  vertices: the robot's configuration is a source, a goal configuration a sink), cost
+  ``W[row, t]`` (``lfd.edgestore``).
+
+It is never materialized (~n T k edges: 1M at n = 1,000, T = 24). Two pieces search it:
+
+* ``cost_to_go``: the exact cost-to-go ``H (N, T)`` of every node, backwards over the steps: a
+  node's best way out of step t by a time edge, ``term(v) = min_k trans[t, k] + ell[v, t + k] +
+  H[v, t + k]``, then the best way to some node's ``term`` inside step t, which is a shortest
+  path problem on the roadmap with one super source (Dijkstra, scipy's compiled
+  ``csgraph.dijkstra``, one call per step);
+* ``astar``: A* from the robot's node with ``H`` as the heuristic. On the graph ``H`` was
+  computed for, A* expands little more than the optimal path; after the planner drops edges
+  found in collision, ``H`` of the larger graph is still a consistent lower bound, so A* stays
+  optimal and explores only around the dropped edges.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass
+
+import networkx as nx
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import dijkstra
+
+__all__ = ["SearchGraph", "transition_table", "cost_to_go", "astar", "SearchBudgetExceeded"]
+
+_BIG = 1e300  # stands for +inf inside scipy's Dijkstra
+
+
+class SearchBudgetExceeded(RuntimeError):
+    """The search expanded more product nodes than allowed."""
+
+
+def transition_table(trans_cost: np.ndarray, offsets) -> np.ndarray:
+    """``(T, max(offsets) + 1)`` cost of the transition ``t -> t + k`` (inf where not permitted
+    or past the last step) from ``trans_cost (T, K)`` over ``offsets``."""
+    tc = np.asarray(trans_cost, dtype=float)
+    offsets = [int(k) for k in offsets]
+    T = len(tc)
+    trans = np.full((T, max(offsets) + 1), np.inf)
+    for i, k in enumerate(offsets):
+        trans[:, k] = tc[:, i]
+    trans[~np.isfinite(trans)] = np.inf
+    for k in range(trans.shape[1]):
+        trans[max(T - k, 0):, k] = np.inf
+    return trans
+
+
+@dataclass
+class SearchGraph:
+    """The spatial edges of one plan's product graph, over ``N`` vertices with step costs
+    ``ell (N, T)``: rows ``0..E-1`` of ``W (E + E_tmp, T)`` are the roadmap's edges (their ids,
+    ``eid``), both directions; rows from ``E`` on are one-way edges ``src -> dst`` of the plan's
+    temporary vertices (ids ``>= roadmap.n``: the robot's configuration is a source, a goal a
+    sink). ``graph``: the roadmap's ``networkx.Graph``, read through its public adjacency
+    (``graph.adj[v]``, attribute ``eid``) by the A* search; ``ends (E, 2)``: the same edges as an
+    array, for the cost-to-go. ``goal``: a sink vertex that must be reached at the last step
+    (None: any vertex at the last step ends the task); ``blocked (len(W),)``: rows known to
+    collide, skipped by both searches (the caller may set more between searches)."""
+    graph: nx.Graph
+    ends: np.ndarray
+    src: np.ndarray
+    dst: np.ndarray
+    W: np.ndarray
+    ell: np.ndarray
+    goal: int | None = None
+    blocked: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.blocked is None:
+            self.blocked = np.zeros(len(self.W), dtype=bool)
+        self.N, self.T = self.ell.shape
+        self.n_roadmap_edges = len(self.ends)
+        if len(self.W) != self.n_roadmap_edges + len(self.src):
+            raise ValueError(f"Expected {self.n_roadmap_edges + len(self.src)} cost rows, got {len(self.W)}")
+        self.extra: dict[int, list[tuple[int, int]]] = {}  # temporary edges by source: [(dst, row)]
+        for i, (a, b) in enumerate(zip(self.src.tolist(), self.dst.tolist())):
+            self.extra.setdefault(a, []).append((b, self.n_roadmap_edges + i))
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every directed spatial edge: ``(src, dst, row)`` arrays."""
+        E = self.n_roadmap_edges
+        rows = np.arange(E)
+        a, b = self.ends[:, 0], self.ends[:, 1]
+        return (np.concatenate([a, b, self.src]), np.concatenate([b, a, self.dst]),
+                np.concatenate([rows, rows, E + np.arange(len(self.src))]))
+
+    def row_of(self, a: int, b: int) -> int:
+        """The cost row of the spatial edge ``a -> b``."""
+        for w, r in self.extra.get(a, ()):
+            if w == b:
+                return r
+        return int(self.graph.edges[a, b]["eid"])
+
+    def successors(self, v: int) -> tuple[list[int], list[int]]:
+        """Spatial successors of ``v`` and their cost rows (blocked ones included)."""
+        ws, rows = [], []
+        if v in self.graph:
+            for w, data in self.graph.adj[v].items():
+                ws.append(w)
+                rows.append(data["eid"])
+        for w, r in self.extra.get(v, ()):
+            ws.append(w)
+            rows.append(r)
+        return ws, rows
+
+
+def cost_to_go(g: SearchGraph, trans: np.ndarray, t_min: int = 0) -> np.ndarray:
+    """``H (N, T)``: the least cost from ``(v, t)`` to the end of the task, for ``t >= t_min``
+    (``H = 0`` before ``t_min``, where no search from ``t_min`` goes)."""
+    N, T = g.N, g.T
+    offsets = [k for k in range(1, trans.shape[1])]
+    H = np.zeros((N, T))
+    # reversed graph (edge a -> b becomes b -> a) plus a super source S = N with S -> v at term(v)
+    src, dst, row = g.arrays()
+    rows = np.concatenate([dst, np.full(N, N)])
+    cols = np.concatenate([src, np.arange(N)])
+    order = np.argsort(rows, kind="stable")
+    indptr = np.searchsorted(rows[order], np.arange(N + 2))
+    indices = cols[order]
+    n_sp = len(src)
+    sel_edge = order < n_sp  # entries that are spatial edges (the rest: the super source)
+    edge_rows = row[order[sel_edge]]
+    blocked = g.blocked[edge_rows]
+    data = np.empty(len(order))
+    for t in range(T - 1, t_min - 1, -1):
+        if t == T - 1:
+            term = np.zeros(N)
+            if g.goal is not None:
+                term[:] = np.inf
+                term[g.goal] = 0.0
+        else:
+            term = np.full(N, np.inf)
+            for k in offsets:
+                if t + k < T and np.isfinite(trans[t, k]):
+                    term = np.minimum(term, trans[t, k] + g.ell[:, t + k] + H[:, t + k])
+        w = g.W[edge_rows, t]
+        if n_sp == 0 or not np.all(np.isfinite(w)):  # staying in step t is forbidden: no motion
+            H[:, t] = term
+            continue
+        data[sel_edge] = np.where(blocked, _BIG, w)
+        data[~sel_edge] = np.minimum(term, _BIG) + 1.0  # > 0, so that no entry reads as absent
+        M = sp.csr_matrix((data, indices, indptr), shape=(N + 1, N + 1))
+        dist = dijkstra(M, directed=True, indices=N)[:N] - 1.0
+        H[:, t] = np.where(dist >= _BIG * 0.5, np.inf, dist)
+    return H
+
+
+def astar(g: SearchGraph, trans: np.ndarray, H: np.ndarray, source: int, t0: int,
+          max_expansions: int) -> tuple[list[tuple[int, int]], float, int]:
+    """Least-cost path from ``(source, t0)`` to the last step (to ``(g.goal, T-1)`` with a goal).
+
+    ``H`` must be a consistent lower bound of the cost-to-go (``cost_to_go`` of this graph or
+    of one with more edges). Returns ``(path [(v, t), ...], cost, expanded)``; an empty path and
+    inf when there is none. Raises ``SearchBudgetExceeded`` past ``max_expansions``.
+    """
+    T = g.T
+    offsets = [k for k in range(1, trans.shape[1]) if np.isfinite(trans[:, k]).any()]
+    trans_l = trans.tolist()
+    blocked = g.blocked
+    start = source * T + t0
+    h0 = H[source, t0]
+    if not math.isfinite(h0):
+        return [], math.inf, 0
+    best = {start: 0.0}
+    parent = {start: -1}
+    heap = [(h0, 0.0, start)]
+    closed = set()
+    expanded = 0
+    while heap:
+        f, neg_g, node = heapq.heappop(heap)
+        if node in closed:
+            continue
+        closed.add(node)
+        v, t = divmod(node, T)
+        gv = best[node]
+        if t == T - 1 and (g.goal is None or v == g.goal):
+            path = []
+            while node != -1:
+                path.append(divmod(node, T))
+                node = parent[node]
+            return path[::-1], gv, expanded
+        expanded += 1
+        if expanded > max_expansions:
+            raise SearchBudgetExceeded(f"more than {max_expansions} nodes expanded")
+        ws, rows = g.successors(v)
+        succ = []
+        if ws:
+            rows = np.asarray(rows)
+            keep = ~blocked[rows]
+            d = np.asarray(ws)[keep]
+            succ = list(zip((d * T + t).tolist(), g.W[rows[keep], t].tolist(), H[d, t].tolist()))
+        tr = trans_l[t]
+        ev = g.ell[v]
+        Hv = H[v]
+        for k in offsets:
+            if t + k < T and tr[k] < math.inf:
+                succ.append((node + k, tr[k] + ev[t + k], Hv[t + k]))
+        for nxt, c, h in succ:
+            if nxt in closed or not c < math.inf or not h < math.inf:
+                continue
+            ng = gv + c
+            if ng < best.get(nxt, math.inf):
+                best[nxt] = ng
+                parent[nxt] = node
+                heapq.heappush(heap, (ng + h, -ng, nxt))
+    return [], math.inf, expanded
