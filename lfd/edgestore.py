@@ -18,8 +18,10 @@
 
 One method changes what is known: ``invalidate(landmarks=..., region=...)``. New landmarks make
 every cost stale (recomputed in one batch on the next ``costs()``); a region (a ball around a
-moved object's old or new place) resets the collision state of the edges whose swept box meets
-it. The swept box of an edge bounds the ``keypoint_fn`` points (e.g. link origins and the tool
+moved object's old or new place) makes the collision state of the edges whose motion passes near
+it stale: blocked ones are reset at once, free ones when a path reaches them (``check`` and
+``screen`` test them against the regions added since they were settled), so the work of a move
+is proportional to the path, not to the roadmap. The swept box of an edge bounds the ``keypoint_fn`` points (e.g. link origins and the tool
 point) at all its quadrature nodes, grown by ``sweep_margin`` (link radius, tool extent) and
 half a node spacing. ``check(eids)`` settles unknown edges with the roadmap's ``segment_fn``.
 
@@ -112,6 +114,8 @@ class EdgeStore:
         self._pkey = np.empty((0, 0, 3))  # (P, K, 3) interior-node keypoints
         self._screened = np.empty(0, dtype=bool)  # (E,) interior nodes point-checked since the last reset
         self._vscreened = np.empty(0, dtype=bool)  # (n,) vertex checked since a nearby object moved
+        self._regions: list[tuple[np.ndarray, float]] = []  # balls objects moved in or out of
+        self._epoch = np.empty(0, dtype=np.int64)  # (E,) regions an edge's state and screen account for
         self._landmarks = None
         self._costs: tuple[np.ndarray, np.ndarray] | None = None
         self.counters = {"cost_updates": 0, "segment_checks": 0, "blocked": 0, "invalidated": 0,
@@ -156,6 +160,7 @@ class EdgeStore:
             self._pkey = kp if len(self._pkey) == 0 else np.concatenate([self._pkey, kp])
             self._box = np.concatenate([self._box, self._boxes(new, kp, first, m)])
         self._screened = np.concatenate([self._screened, np.ones(len(new), dtype=bool)])
+        self._epoch = np.concatenate([self._epoch, np.full(len(new), len(self._regions))])
         self.ends, self.tau, self.m = np.concatenate([self.ends, new]), np.concatenate([self.tau, tau]), \
             np.concatenate([self.m, m])
         self.state = np.concatenate([self.state, state])
@@ -184,27 +189,60 @@ class EdgeStore:
         """The one way edge knowledge becomes stale.
 
         ``landmarks``: new landmark poses (whatever the step cost takes): every cost is stale.
-        ``region``: ``(centre (3,), radius)`` in the keypoints' frame: the edges whose swept box
-        meets that ball become ``UNKNOWN`` (needs ``keypoint_fn``; without it, every edge).
-        Returns the number of edges whose collision state was reset.
+        ``region``: ``(centre (3,), radius)`` in the keypoints' frame, a ball an object moved in
+        or out of: what is known of the edges whose motion passes near it is stale. Blocked
+        edges near it are reset to ``UNKNOWN`` now (so that the search may use them again);
+        free and screened ones are judged lazily, when a plan's path or its screen reaches
+        them (``check``, ``screen``): a landmark move costs work near the path, not over the
+        roadmap. Without ``keypoint_fn`` every edge is near. Returns the number of blocked
+        edges reset now.
         """
         if landmarks is not None:
             self._landmarks, self._costs = landmarks, None
         if region is None:
             return 0
         c, r = np.asarray(region[0], dtype=float).reshape(3), float(region[1])
-        if self.keypoint_fn is None:
-            near = np.ones(len(self.state), dtype=bool)
-        else:
-            gap = np.maximum(np.maximum(self._box[:, 0] - c, c - self._box[:, 1]), 0.0)
-            near = np.linalg.norm(gap, axis=1) <= r  # box test, then the arm's polyline at every node
-            near[near] = self._polyline_near(np.flatnonzero(near), c, r)
-        reset = near & ((self.state != UNKNOWN) | self._screened)
+        self._regions.append((c, r))
+        blocked = np.flatnonzero(self.state == BLOCKED)
+        reset = blocked[self._near(blocked, c, r)]
         self.state[reset] = UNKNOWN
         self._screened[reset] = False
+        self.counters["invalidated"] += len(reset)
+        return len(reset)
+
+    def _near(self, eids: np.ndarray, c: np.ndarray, r: float) -> np.ndarray:
+        """``(len(eids),)`` bool: the edge's motion passes within ``r`` of ``c`` (swept box, then
+        the keypoint polyline at every quadrature node); all True without ``keypoint_fn``."""
+        if self.keypoint_fn is None:
+            return np.ones(len(eids), dtype=bool)
+        box = self._box[eids]
+        gap = np.maximum(np.maximum(box[:, 0] - c, c - box[:, 1]), 0.0)
+        near = np.linalg.norm(gap, axis=1) <= r
+        if near.any():
+            near[near] = self._polyline_near(eids[near], c, r)
+        return near
+
+    def _refresh(self, eids: np.ndarray) -> None:
+        """Bring the edges ``eids`` (unique) up to date with the regions added since they were
+        last settled: those passing near one become ``UNKNOWN`` (a free verdict, a screen) again,
+        as do their end vertices' checks."""
+        K = len(self._regions)
+        stale = eids[self._epoch[eids] < K]
+        if len(stale) == 0:
+            return
+        hit = np.zeros(len(stale), dtype=bool)
+        for j in range(int(self._epoch[stale].min()), K):
+            sel = np.flatnonzero((self._epoch[stale] <= j) & ~hit)
+            if len(sel):
+                c, r = self._regions[j]
+                hit[sel] = self._near(stale[sel], c, r)
+        near = stale[hit]
+        reset = near[self.state[near] == FREE]
+        self.state[reset] = UNKNOWN
+        self._screened[near] = False
         self._vscreened[self.ends[near].ravel()] = False
-        self.counters["invalidated"] += int(reset.sum())
-        return int(reset.sum())
+        self._epoch[stale] = K
+        self.counters["invalidated"] += len(reset)
 
     def _polyline_near(self, eids: np.ndarray, c: np.ndarray, r: float) -> np.ndarray:
         """``(len(eids),)`` bool: some node of the edge has its keypoint polyline (the arm's links,
@@ -230,6 +268,7 @@ class EdgeStore:
         ``BLOCKED``. A cheap first look near a collision; the segment check stays the final
         word. Returns how many were blocked."""
         eids = np.unique(np.asarray(eids, dtype=np.int64))
+        self._refresh(eids)
         eids = eids[(self.state[eids] == UNKNOWN) & ~self._screened[eids]]
         self._screened[eids] = True
         verts = np.unique(self.ends[eids])
@@ -261,6 +300,7 @@ class EdgeStore:
     def check(self, eids) -> np.ndarray:
         """Settle the collision state of ``eids`` (unknown ones checked now); ``(len,)`` bool free."""
         eids = np.asarray(eids, dtype=np.int64).reshape(-1)
+        self._refresh(np.unique(eids))
         V = self.roadmap.vertices
         for e in eids[self.state[eids] == UNKNOWN].tolist():
             u, w = self.ends[e]

@@ -19,9 +19,12 @@ joint and task columns, the residual of Eq. 3 is ``r_t = a_t + S_x,t y_t`` with
     |r_t|^2 = alpha_t + 2 beta_t . y_t + y_t^T G_t y_t,
     alpha_t = |a_t|^2,  beta_t = S_x,t^T a_t,  G_t = S_x,t^T S_x,t.
 
-``alpha (N, T)``, ``beta (N, T, 3)`` and the world tool point ``p (N, 3)`` are prepared; a landmark
-move recomputes ``x = A p + b`` (``K_virt^-1``, an affine map) and the 3x3 quadratic form: about
-15 flops per configuration and step instead of FK plus an ``F x F`` triangular product.
+Written in ``x`` itself, ``|r_t|^2 = alpha'_t + 2 beta'_t . x + x^T G_t x`` with
+``alpha'_t = alpha_t - 2 beta_t . mu_x,t + mu_x,t^T G_t mu_x,t`` and ``beta'_t = beta_t - G_t mu_x,t``.
+``alpha' (N, T)``, ``beta' (N, T, 3)`` and the world tool point ``p (N, 3)`` are prepared; a
+landmark move recomputes ``x = A p + b`` (``K_virt^-1``, an affine map), one batched product
+for ``beta' . x`` and one matrix product ``(N, 9) @ (9, T)`` for the quadratic form: about 24
+flops per configuration and step instead of FK plus an ``F x F`` triangular product.
 
 ``CallableStepCost`` adapts any ``factory(landmarks) -> step_nll(Q: (N, d)) -> (N, T)`` (a toy
 cost, a user's own model) with a known lower bound ``floor`` (one number or ``(T,)``) subtracted.
@@ -77,9 +80,12 @@ class ModelStepCost:
         self._mu_q, self._mu_x = mu[:, :self.d], mu[:, self.d:]  # (T, d), (T, 3)
         self._G = self._S_x.transpose(1, 2) @ self._S_x  # (T, 3, 3)
         self._tool = model.tool.detach()  # (3,)
+        self._Gmu = torch.einsum("tij,tj->ti", self._G, self._mu_x)  # (T, 3)
+        self._muGmu = (self._mu_x * self._Gmu).sum(-1)  # (T,)
+        self._G9 = self._G.reshape(self.T, 9).T.contiguous()  # (9, T)
 
     def prepare(self, Q) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``Q (N, d)`` -> ``p (N, 3)`` world tool point, ``alpha (N, T)``, ``beta (N, T, 3)``."""
+        """``Q (N, d)`` -> ``p (N, 3)`` world tool point, ``alpha' (N, T)``, ``beta' (N, T, 3)``."""
         m = self.model
         Q = torch.as_tensor(np.asarray(Q, dtype=float), dtype=m.dtype, device=m.device).reshape(-1, self.d)
         ps, alphas, betas = [], [], []
@@ -88,8 +94,9 @@ class ModelStepCost:
                 T_world_ee = m.kin.fk(Qb)  # (B, 4, 4)
                 ps.append(T_world_ee[:, :3, :3] @ self._tool + T_world_ee[:, :3, 3])
                 a = torch.einsum("tfd,btd->btf", self._S_q, Qb[:, None, :] - self._mu_q[None])  # (B, T, F)
-                alphas.append((a * a).sum(-1))
-                betas.append(torch.einsum("tfi,btf->bti", self._S_x, a))
+                beta = torch.einsum("tfi,btf->bti", self._S_x, a)  # (B, T, 3)
+                alphas.append((a * a).sum(-1) - 2.0 * (beta * self._mu_x).sum(-1) + self._muGmu)
+                betas.append(beta - self._Gmu)
         if not ps:
             z = Q.new_zeros
             return z(0, 3), z(0, self.T), z(0, self.T, 3)
@@ -101,9 +108,8 @@ class ModelStepCost:
         K = self.model.K_virt_inv(landmarks).detach()  # (4, 4)
         with torch.no_grad():
             x = p @ K[:3, :3].T + K[:3, 3]  # (N, 3)
-            y = x[:, None, :] - self._mu_x[None]  # (N, T, 3)
-            Gy = torch.einsum("tij,ntj->nti", self._G, y)
-            out = alpha + ((2.0 * beta + Gy) * y).sum(-1)
+            xx = (x[:, :, None] * x[:, None, :]).reshape(len(x), 9)  # (N, 9)
+            out = alpha + 2.0 * torch.bmm(beta, x[:, :, None])[..., 0] + xx @ self._G9  # (N, T)
         return _checked(out.clamp_min(0.0), len(p), self.T, "ModelStepCost")
 
 
