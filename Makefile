@@ -28,6 +28,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/collision.py
 	$(PY) benchmarks/learning.py
 	$(PY) benchmarks/planning.py
+	$(PY) benchmarks/reaction.py --task powder
 
 clean-venv:
 	rm -rf $(VENV)

@@ -4,8 +4,10 @@ A synthetic 7-DOF problem (Baxter's left-arm joint limits and velocity limits, T
 dt = 0.1 s): the step cost is a Gaussian nll per time step around means on a curve in joint space
 (negative near the means, like the learned model), the "landmarks" a_hat are an offset of that
 curve, and obstacles are a few spheres in joint space (segments checked every 0.05 rad).
-For each roadmap size: build (lazy edge checks, and eager for comparison), first plan, then two
-replanning scenarios of >= 20 landmark moves each:
+A synthetic stand-in: it measures the planner's own work, not the real task's (collision checks
+in PyBullet, the learned costs): for that, ``benchmarks/reaction.py``. For each roadmap size:
+build (edges are checked lazily, on the paths), first plan, then two replanning scenarios of >= 20
+landmark moves each:
 
 * ``closed_loop``: after each move, replan from the robot's current state; between moves the robot
   advances one waypoint along its last plan (back to the start when the task is done);
@@ -34,8 +36,8 @@ import torch
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
 from lfd.planner import ClosedLoopPlanner, PlannerSettings
-from lfd.roadmap import Roadmap, RoadmapSettings, mixed_samples
-from lfd.stcost import CostSettings
+from lfd.roadmap import Roadmap, mixed_samples
+from lfd.stepcost import CallableStepCost
 
 ROOT = Path(__file__).resolve().parent.parent
 LOWER = np.array([-1.70, -2.147, -3.05, -0.05, -3.059, -1.571, -3.059])
@@ -108,7 +110,7 @@ def replan_series(planner, first, moves: int, rng, closed_loop: bool, move_sigma
             "edges_evaluated_max": max(s.get("edges_evaluated", 0) for s in stats)}
 
 
-def run_size(n: int, moves: int, seed: int, eager_compare: bool, move_sigma: float) -> dict:
+def run_size(n: int, moves: int, seed: int, move_sigma: float) -> dict:
     rng = np.random.default_rng(seed)
     collision_fn, batch_collision_fn, segment_fn = make_world(rng)
     ends = rng.uniform(LOWER * 0.7, UPPER * 0.7, (2, 7))
@@ -126,8 +128,9 @@ def run_size(n: int, moves: int, seed: int, eager_compare: bool, move_sigma: flo
            "build_lazy_s": build_s}
 
     lt = np.log(np.tile([0.3, 0.5, 0.2], (T, 1)))
-    planner = ClosedLoopPlanner(rm, gaussian_step_cost(curve), lt, DT, VMAX,
-                                settings=PlannerSettings(cost=CostSettings()))
+    floor = 7 * math.log(math.sqrt(2 * math.pi) * SIGMA)  # the Gaussian nll's minimum
+    planner = ClosedLoopPlanner(rm, CallableStepCost(gaussian_step_cost(curve), T, floor), -lt, DT, VMAX,
+                                settings=PlannerSettings())
     planner.update_landmarks(np.zeros(7))
     q = curve[0].copy()
     while collision_fn(q):
@@ -137,12 +140,6 @@ def run_size(n: int, moves: int, seed: int, eager_compare: bool, move_sigma: flo
                          "cost": first.cost, "waypoints": len(first.time_steps), **first.stats}
     out["closed_loop"] = replan_series(planner, first, moves, rng, True, move_sigma)
     out["from_start"] = replan_series(planner, first, moves, rng, False, move_sigma)
-    if eager_compare:
-        tic = time.perf_counter()
-        Roadmap.build(lambda m: samples[:m] if m == 2 * n else sample_fn(m), n, collision_fn,
-                      segment_fn, batch_collision_fn=batch_collision_fn,
-                      settings=RoadmapSettings(lazy=False))
-        out["build_eager_s"] = time.perf_counter() - tic
     return out
 
 
@@ -153,7 +150,6 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--move-sigma", type=float, default=0.05,
                     help="std (rad) per joint of each landmark move of the Gaussians' means")
-    ap.add_argument("--no-eager", action="store_true", help="skip the eager-build comparison")
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "bench" / "planning.json")
     args = ap.parse_args(argv)
     if args.moves < 20:
@@ -171,7 +167,7 @@ def main(argv=None) -> int:
                           "move_sigma": args.move_sigma, "moves": args.moves, "seed": args.seed,
                           "machine": platform.processor() or platform.machine()},
               "targets_s": {"1000": 0.050, "5000": 0.200},
-              "runs": [run_size(n, args.moves, args.seed, not args.no_eager, args.move_sigma)
+              "runs": [run_size(n, args.moves, args.seed, args.move_sigma)
                        for n in args.sizes]}
     try:
         args.out.write_text(json.dumps(report, indent=2))
@@ -179,7 +175,6 @@ def main(argv=None) -> int:
         raise UsageError(f"cannot write {args.out}: {e.strerror or e}") from e
     for r in report["runs"]:
         print(f"n={r['n']:5d} k={r['k']} build {r['build_lazy_s']:.2f}s "
-              f"(eager {r.get('build_eager_s', float('nan')):.2f}s) "
               f"first plan {r['first_plan']['latency_s'] * 1e3:.0f} ms")
         for name in ("closed_loop", "from_start"):
             rp = r[name]

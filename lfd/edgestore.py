@@ -16,12 +16,14 @@
 * its collision state: ``UNKNOWN`` (not checked, or checked before a nearby object moved),
   ``FREE`` or ``BLOCKED``.
 
-One method changes what is known: ``invalidate(landmarks=..., region=...)``. New landmarks make
-every cost stale (recomputed in one batch on the next ``costs()``); a region (a ball around a
-moved object's old or new place) makes the collision state of the edges whose motion passes near
-it stale: blocked ones are reset at once, free ones when a path reaches them (``check`` and
-``screen`` test them against the regions added since they were settled), so the work of a move
-is proportional to the path, not to the roadmap. The swept box of an edge bounds the ``keypoint_fn`` points (e.g. link origins and the tool
+One method changes what is known: ``invalidate(landmarks=..., vacated=..., occupied=...)``. New
+landmarks make every cost stale (recomputed in one batch on the next ``costs()``). An object that
+moved leaves a ball (``vacated``, its old place) and takes another (``occupied``): an object that
+leaves cannot make a motion collide, so only the blocked edges passing near the vacated ball are
+reset (at once, so that the search may use them again); an object that arrives cannot free a
+motion, so only the free (and screened) edges passing near the occupied ball become stale, and
+lazily: ``check`` and ``screen`` test the edges a path reaches against the balls occupied since
+they were settled. The work of a move is proportional to the path, not to the roadmap. The swept box of an edge bounds the ``keypoint_fn`` points (e.g. link origins and the tool
 point) at all its quadrature nodes, grown by ``sweep_margin`` (link radius, tool extent) and
 half a node spacing. ``check(eids)`` settles unknown edges with the roadmap's ``segment_fn``.
 
@@ -86,7 +88,8 @@ class EdgeStore:
     stay : (T,) cost of one sampling interval spent in step t (``-log p(t | t)``, inf = forbidden).
     dt : sampling interval (s); vmax : (d,) joint velocity limits; quad_dt : time between
     quadrature nodes (default dt).
-    keypoint_fn : optional ``Q (N, d) -> (N, K, 3)`` points swept by the robot (for ``region``).
+    keypoint_fn : optional ``Q (N, d) -> (N, K, 3)`` points swept by the robot (for the balls
+        of ``invalidate``; without it every edge is near every ball).
     sweep_margin : m added around the keypoints' box of an edge.
     """
 
@@ -114,7 +117,7 @@ class EdgeStore:
         self._pkey = np.empty((0, 0, 3))  # (P, K, 3) interior-node keypoints
         self._screened = np.empty(0, dtype=bool)  # (E,) interior nodes point-checked since the last reset
         self._vscreened = np.empty(0, dtype=bool)  # (n,) vertex checked since a nearby object moved
-        self._regions: list[tuple[np.ndarray, float]] = []  # balls objects moved in or out of
+        self._regions: list[tuple[np.ndarray, float]] = []  # balls objects moved into
         self._epoch = np.empty(0, dtype=np.int64)  # (E,) regions an edge's state and screen account for
         self._landmarks = None
         self._costs: tuple[np.ndarray, np.ndarray] | None = None
@@ -185,29 +188,28 @@ class EdgeStore:
         return np.stack([lo - grow[:, None], hi + grow[:, None]], axis=1)
 
     # ------------------------------------------------------------------ state changes
-    def invalidate(self, landmarks=None, region: tuple | None = None) -> int:
+    def invalidate(self, landmarks=None, vacated: tuple | None = None, occupied: tuple | None = None) -> int:
         """The one way edge knowledge becomes stale.
 
         ``landmarks``: new landmark poses (whatever the step cost takes): every cost is stale.
-        ``region``: ``(centre (3,), radius)`` in the keypoints' frame, a ball an object moved in
-        or out of: what is known of the edges whose motion passes near it is stale. Blocked
-        edges near it are reset to ``UNKNOWN`` now (so that the search may use them again);
-        free and screened ones are judged lazily, when a plan's path or its screen reaches
-        them (``check``, ``screen``): a landmark move costs work near the path, not over the
-        roadmap. Without ``keypoint_fn`` every edge is near. Returns the number of blocked
+        ``vacated``, ``occupied``: ``(centre (3,), radius)`` in the keypoints' frame, a ball an
+        object left or now takes. Blocked edges passing near a vacated ball are reset to
+        ``UNKNOWN`` now; free and screened edges passing near an occupied ball are judged again
+        when a path or its screen reaches them (``check``, ``screen``). Returns the number of
         edges reset now.
         """
         if landmarks is not None:
             self._landmarks, self._costs = landmarks, None
-        if region is None:
-            return 0
-        c, r = np.asarray(region[0], dtype=float).reshape(3), float(region[1])
-        self._regions.append((c, r))
-        blocked = np.flatnonzero(self.state == BLOCKED)
-        reset = blocked[self._near(blocked, c, r)]
-        self.state[reset] = UNKNOWN
-        self._screened[reset] = False
-        self.counters["invalidated"] += len(reset)
+        reset = np.zeros(0, dtype=np.int64)
+        if vacated is not None:
+            c, r = np.asarray(vacated[0], dtype=float).reshape(3), float(vacated[1])
+            blocked = np.flatnonzero(self.state == BLOCKED)
+            reset = blocked[self._near(blocked, c, r)]
+            self.state[reset] = UNKNOWN
+            self._screened[reset] = False
+            self.counters["invalidated"] += len(reset)
+        if occupied is not None:
+            self._regions.append((np.asarray(occupied[0], dtype=float).reshape(3), float(occupied[1])))
         return len(reset)
 
     def _near(self, eids: np.ndarray, c: np.ndarray, r: float) -> np.ndarray:
@@ -223,9 +225,9 @@ class EdgeStore:
         return near
 
     def _refresh(self, eids: np.ndarray) -> None:
-        """Bring the edges ``eids`` (unique) up to date with the regions added since they were
-        last settled: those passing near one become ``UNKNOWN`` (a free verdict, a screen) again,
-        as do their end vertices' checks."""
+        """Bring the edges ``eids`` (unique) up to date with the balls occupied since they were
+        last settled: free ones passing near one become ``UNKNOWN`` and are screened again, as
+        are their end vertices."""
         K = len(self._regions)
         stale = eids[self._epoch[eids] < K]
         if len(stale) == 0:

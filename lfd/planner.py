@@ -3,7 +3,7 @@
 ``ClosedLoopPlanner`` plans from the robot's current configuration and time step whenever asked.
 Edge knowledge lives in one ``lfd.edgestore.EdgeStore``: new sensed landmarks
 (``update_landmarks``) make every edge cost stale, and the next ``plan`` recomputes them in one
-batch; an object that moved (``invalidate_region``) makes the collision state of the edges near
+batch; an object that moved (``object_moved``) makes the collision state of the edges near
 it unknown again. A plan:
 
 1. costs every edge and vertex for the current landmarks, if stale (``EdgeStore.costs``), and the
@@ -135,7 +135,7 @@ class ClosedLoopPlanner:
     dt : sampling interval of the demonstrations (s); vmax : (d,) joint velocity limits.
     offsets : permitted time-step offsets (must include 0 for roadmap edges to be usable).
     keypoint_fn : optional ``Q (N, d) -> (N, K, 3)`` points the robot sweeps (for
-        ``invalidate_region``; without it a region invalidates every edge).
+        ``object_moved``; without it a moved object makes every edge stale).
     settings : PlannerSettings.
     """
 
@@ -158,6 +158,8 @@ class ClosedLoopPlanner:
         self.edges = EdgeStore(roadmap, step_cost, stay, dt, vmax, settings.quad_dt, keypoint_fn,
                                settings.sweep_margin)
         self._landmark_error: str | None = "no landmarks yet: call update_landmarks"
+        self._adjacency: dict = {}  # the roadmap's adjacency as arrays, read by A* (lfd.stsearch)
+        self._adjacency_edges = -1
 
     # ------------------------------------------------------------------ what changed
     def update_landmarks(self, landmarks) -> None:
@@ -171,10 +173,13 @@ class ClosedLoopPlanner:
             pass  # not an array (e.g. a dict of poses): the step cost judges it
         self.edges.invalidate(landmarks=landmarks)
 
-    def invalidate_region(self, centre, radius: float) -> int:
-        """An object moved in or out of the ball ``(centre (3,), radius)``: the edges whose motion
-        passes near it are checked again when a path uses them. Returns how many were reset."""
-        return self.edges.invalidate(region=(centre, radius))
+    def object_moved(self, old_centre, new_centre, radius: float) -> int:
+        """An object of about ``radius`` moved from ``old_centre (3,)`` to ``new_centre (3,)``
+        (either may be None: it appeared or left): blocked edges near its old place may be free
+        now, free edges near its new place are checked again when a path uses them
+        (``EdgeStore.invalidate``). Returns how many edges were reset at once."""
+        return self.edges.invalidate(vacated=None if old_centre is None else (old_centre, radius),
+                                     occupied=None if new_centre is None else (new_centre, radius))
 
     # ------------------------------------------------------------------ planning
     def _result(self, status, tic, message="", path=(), temps=None, cost=math.inf, stats=None) -> PlanResult:
@@ -260,7 +265,9 @@ class ClosedLoopPlanner:
         """The plan's search graph: the roadmap's edges (both ways) and the temporary edges; rows
         known to collide are marked in ``blocked`` (kept current by ``_check_path``)."""
         E = self.edges
-        return SearchGraph(graph=self.roadmap.graph, ends=E.ends,
+        if self._adjacency_edges != len(E.ends):  # the roadmap grew: its adjacency changed
+            self._adjacency, self._adjacency_edges = {}, len(E.ends)
+        return SearchGraph(graph=self.roadmap.graph, ends=E.ends, adjacency=self._adjacency,
                            src=np.array(temps.src, dtype=np.int64), dst=np.array(temps.dst, dtype=np.int64),
                            W=np.concatenate([W, *temps.W]), ell=np.concatenate([ell, np.stack(temps.ell)]),
                            goal=temps.n + 1 if goal else None,

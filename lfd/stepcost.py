@@ -87,7 +87,7 @@ class ModelStepCost:
     def prepare(self, Q) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """``Q (N, d)`` -> ``p (N, 3)`` world tool point, ``alpha' (N, T)``, ``beta' (N, T, 3)``."""
         m = self.model
-        Q = torch.as_tensor(np.asarray(Q, dtype=float), dtype=m.dtype, device=m.device).reshape(-1, self.d)
+        Q = torch.as_tensor(np.array(Q, dtype=float), dtype=m.dtype, device=m.device).reshape(-1, self.d)
         ps, alphas, betas = [], [], []
         with torch.no_grad():
             for Qb in torch.split(Q, self.max_batch):

@@ -68,7 +68,9 @@ class SearchGraph:
     (``graph.adj[v]``, attribute ``eid``) by the A* search; ``ends (E, 2)``: the same edges as an
     array, for the cost-to-go. ``goal``: a sink vertex that must be reached at the last step
     (None: any vertex at the last step ends the task); ``blocked (len(W),)``: rows known to
-    collide, skipped by both searches (the caller may set more between searches)."""
+    collide, skipped by both searches (the caller may set more between searches);
+    ``adjacency``: a cache ``{v: (neighbours, rows)}`` of the roadmap's adjacency that the caller
+    may keep across plans while the roadmap's edges stay the same (filled as A* reads it)."""
     graph: nx.Graph
     ends: np.ndarray
     src: np.ndarray
@@ -77,8 +79,11 @@ class SearchGraph:
     ell: np.ndarray
     goal: int | None = None
     blocked: np.ndarray | None = None
+    adjacency: dict | None = None
 
     def __post_init__(self):
+        if self.adjacency is None:
+            self.adjacency = {}
         if self.blocked is None:
             self.blocked = np.zeros(len(self.W), dtype=bool)
         self.N, self.T = self.ell.shape
@@ -104,17 +109,23 @@ class SearchGraph:
                 return r
         return int(self.graph.edges[a, b]["eid"])
 
-    def successors(self, v: int) -> tuple[list[int], list[int]]:
-        """Spatial successors of ``v`` and their cost rows (blocked ones included)."""
-        ws, rows = [], []
-        if v in self.graph:
-            for w, data in self.graph.adj[v].items():
-                ws.append(w)
-                rows.append(data["eid"])
-        for w, r in self.extra.get(v, ()):
-            ws.append(w)
-            rows.append(r)
-        return ws, rows
+    def successors(self, v: int) -> tuple[np.ndarray, np.ndarray]:
+        """Spatial successors ``(N_v,)`` of ``v`` and their cost rows ``(N_v,)`` (blocked ones
+        included): the roadmap's neighbours (``graph.adj[v]``, cached) and temporary edges."""
+        hit = self.adjacency.get(v)
+        if hit is None:
+            if v in self.graph:
+                adj = self.graph.adj[v]
+                hit = (np.fromiter(adj, dtype=np.int64, count=len(adj)),
+                       np.fromiter((d["eid"] for d in adj.values()), dtype=np.int64, count=len(adj)))
+            else:
+                hit = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+            self.adjacency[v] = hit
+        extra = self.extra.get(v)
+        if extra:
+            return (np.concatenate([hit[0], [w for w, _ in extra]]).astype(np.int64),
+                    np.concatenate([hit[1], [r for _, r in extra]]).astype(np.int64))
+        return hit
 
 
 def cost_to_go(g: SearchGraph, trans: np.ndarray, t_min: int = 0) -> np.ndarray:
@@ -174,18 +185,19 @@ def astar(g: SearchGraph, trans: np.ndarray, H: np.ndarray, source: int, t0: int
     h0 = H[source, t0]
     if not math.isfinite(h0):
         return [], math.inf, 0
-    best = {start: 0.0}
+    best = np.full(g.N * T, np.inf)  # g-values by node id v * T + t
+    best[start] = 0.0
+    closed = np.zeros(g.N * T, dtype=bool)
     parent = {start: -1}
     heap = [(h0, 0.0, start)]
-    closed = set()
     expanded = 0
     while heap:
         f, neg_g, node = heapq.heappop(heap)
-        if node in closed:
+        if closed[node]:
             continue
-        closed.add(node)
+        closed[node] = True
         v, t = divmod(node, T)
-        gv = best[node]
+        gv = -neg_g
         if t == T - 1 and (g.goal is None or v == g.goal):
             path = []
             while node != -1:
@@ -196,24 +208,28 @@ def astar(g: SearchGraph, trans: np.ndarray, H: np.ndarray, source: int, t0: int
         if expanded > max_expansions:
             raise SearchBudgetExceeded(f"more than {max_expansions} nodes expanded")
         ws, rows = g.successors(v)
-        succ = []
-        if ws:
-            rows = np.asarray(rows)
+        if len(ws):  # spatial edges, all at once
             keep = ~blocked[rows]
-            d = np.asarray(ws)[keep]
-            succ = list(zip((d * T + t).tolist(), g.W[rows[keep], t].tolist(), H[d, t].tolist()))
+            d = ws[keep]
+            nxt = d * T + t
+            ng = gv + g.W[rows[keep], t]
+            h = H[d, t]
+            better = (ng < best[nxt]) & np.isfinite(h) & ~closed[nxt]
+            if better.any():
+                nxt, ng, h = nxt[better], ng[better], h[better]
+                best[nxt] = ng
+                for n_, g_, f_ in zip(nxt.tolist(), ng.tolist(), (ng + h).tolist()):
+                    parent[n_] = node
+                    heapq.heappush(heap, (f_, -g_, n_))
         tr = trans_l[t]
         ev = g.ell[v]
         Hv = H[v]
-        for k in offsets:
+        for k in offsets:  # time edges
             if t + k < T and tr[k] < math.inf:
-                succ.append((node + k, tr[k] + ev[t + k], Hv[t + k]))
-        for nxt, c, h in succ:
-            if nxt in closed or not c < math.inf or not h < math.inf:
-                continue
-            ng = gv + c
-            if ng < best.get(nxt, math.inf):
-                best[nxt] = ng
-                parent[nxt] = node
-                heapq.heappush(heap, (ng + h, -ng, nxt))
+                n_ = node + k
+                g_ = gv + tr[k] + ev[t + k]
+                if g_ < best[n_] and Hv[t + k] < math.inf and not closed[n_]:
+                    best[n_] = g_
+                    parent[n_] = node
+                    heapq.heappush(heap, (g_ + Hv[t + k], -g_, n_))
     return [], math.inf, expanded

@@ -258,7 +258,7 @@ class TaskPlanner:
                     and np.linalg.norm(pos - old) > 0.005:
                 r = self.settings.object_radius
                 self.stats["invalidated_edges"] = self.stats.get("invalidated_edges", 0) + \
-                    self.planner.invalidate_region(old, r) + self.planner.invalidate_region(pos, r)
+                    self.planner.object_moved(old, pos, r)
             if np.all(np.isfinite(pos)):
                 self._sensed[name] = pos.copy()
 
@@ -275,7 +275,7 @@ class TaskPlanner:
 
     def _keypoints(self, Q) -> np.ndarray:
         """``Q (N, d) -> (N, K, 3)``: the arm's link origins and the tool point, world frame."""
-        Q = torch.as_tensor(np.asarray(Q, dtype=float), dtype=self.model.dtype, device=self.model.device)
+        Q = torch.as_tensor(np.array(Q, dtype=float), dtype=self.model.dtype, device=self.model.device)
         with torch.no_grad():
             origins, T_world_ee = self.kin.frame_origins(Q)  # (N, L, 3), (N, 4, 4)
             tool = T_world_ee[:, :3, :3] @ self.model.tool.detach() + T_world_ee[:, :3, 3]

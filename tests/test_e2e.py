@@ -67,6 +67,10 @@ def test_pipeline_plans_and_replans(model_dir, free_run):
     # the reaction time is timed too: the landmark update before every re-plan, and the build
     assert len(r["replan_update_ms"]) == r["n_replans"] and all(u > 0 for u in r["replan_update_ms"])
     assert r["build_ms"] > 0
+    # the world ran on while the planner worked: each re-plan was charged its wall-clock time
+    assert r["latency"] == r["latency_mode"] == "measured" and len(r["charged_ms"]) == r["n_replans"]
+    assert all(c >= u + x for c, u, x in zip(r["charged_ms"], r["replan_update_ms"], r["replan_ms"]))
+    assert 1 <= r["switches"] <= r["n_replans"]
 
 
 def test_plans_pass_the_collision_checker(model_dir):
@@ -113,6 +117,21 @@ def test_obstacle_across_the_learned_path(model_dir, free_run):
     assert not blind["success"] and any(c["body"] == "paper_towels" for c in blind["contacts"]), blind["reason"]
     seeing = run_one("powder", sc, LEARNED, str(model_dir), ROADMAP)
     assert seeing["success"], seeing["reason"]
+
+
+@pytest.mark.slow
+def test_a_slow_planner_misses_the_moved_bowl_and_a_fast_one_does_not(model_dir):
+    """The world does not wait: the bowl moves shortly before the dump; a planner that takes 2 s
+    lets the robot dump where the bowl was, one that takes 0.2 s (or a frozen world) does not."""
+    from dataclasses import replace
+    after = (BOWL[0] - 0.25, BOWL[1] + 0.2)
+    sc = replace(_scenario(BOWL, bowl_after=after), move_at_step=10)
+    runs = {lat: run_one("powder", sc, LEARNED, str(model_dir), ROADMAP, latency=lat) for lat in ("none", "0.2", "2.0")}
+    assert runs["none"]["success"] and runs["0.2"]["success"], (runs["none"]["reason"], runs["0.2"]["reason"])
+    assert runs["0.2"]["charged_ms"] and all(c == 200.0 for c in runs["0.2"]["charged_ms"])
+    slow = runs["2.0"]
+    assert slow["n_replans"] >= 1 and all(c == 2000.0 for c in slow["charged_ms"])
+    assert not slow["success"] and slow["fraction_in_bowl"] < 0.5, slow["reason"]
 
 
 @pytest.mark.slow

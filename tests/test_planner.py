@@ -250,8 +250,8 @@ def test_cost_to_go_is_the_exact_distance_to_the_end(toy):
 
 
 def test_an_object_that_moved_is_checked_again_and_the_plan_equals_a_fresh_one():
-    """The obstacle moves across the arc after a first plan: ``invalidate_region`` around its
-    old and new place resets the edges near them, and the next plan equals Dijkstra on the new
+    """The obstacle moves across the arc after a first plan: ``object_moved`` resets the
+    blocked edges near its old place and makes the free ones near its new place stale, and the next plan equals Dijkstra on the new
     world (and a fresh planner's); edges far from both places keep their checks."""
     box = {"lo": BOX_LO.copy(), "hi": BOX_HI.copy()}
 
@@ -277,7 +277,7 @@ def test_an_object_that_moved_is_checked_again_and_the_plan_equals_a_fresh_one()
     box["lo"], box["hi"] = np.array([-0.45, 0.3]), np.array([-0.15, 0.85])  # to the arc's other side
     new_c = 0.5 * (box["lo"] + box["hi"])
     known = p.edges.state != UNKNOWN
-    reset = p.invalidate_region(np.r_[old_c, 0.0], radius) + p.invalidate_region(np.r_[new_c, 0.0], radius)
+    reset = p.object_moved(np.r_[old_c, 0.0], np.r_[new_c, 0.0], radius)
     assert 0 < reset
     res = p.plan(q0, 0)
     assert_path_valid(res, seg_now)
@@ -285,12 +285,15 @@ def test_an_object_that_moved_is_checked_again_and_the_plan_equals_a_fresh_one()
     fresh = ClosedLoopPlanner(rm, step_cost(T2), trans_table(T2), DT, VMAX2)
     fresh.update_landmarks(means)
     assert res.cost == pytest.approx(fresh.plan(q0, 0).cost, rel=1e-9)
-    # every edge whose state is known now is right for the new world
+    # asked about, every edge known before the move answers right for the new world: the stale
+    # free ones near the new place are checked again, the others keep their verdicts
+    checks = p.edges.counters["segment_checks"]
+    eids = np.flatnonzero(known)
+    free = p.edges.check(eids)
     V = rm.vertices
-    for e in np.flatnonzero(p.edges.state != UNKNOWN):
-        u, w = p.edges.ends[e]
-        assert (p.edges.state[e] == BLOCKED) == seg_now(V[u], V[w])
-    assert known.sum() > 0
+    truth = np.array([seg_now(V[u], V[w]) for u, w in p.edges.ends[eids]])
+    np.testing.assert_array_equal(free, ~truth)
+    assert 0 < p.edges.counters["segment_checks"] - checks < len(eids)
 
 
 def test_edge_integral_converges_with_resolution():
