@@ -120,6 +120,7 @@ class RunResult:
     latency_mode: str = "none"  # ExecSettings.latency of the run
     charged_ms: list = field(default_factory=list)  # simulated time each re-plan took
     switches: int = 0  # re-plans that arrived and took over
+    tracking_max_mm: float = 0.0  # largest distance of an arm frame or the tool point from where commanded
     plan_statuses: list = field(default_factory=list)
     duration_s: float = 0.0
     task_point_path: list = field(default_factory=list)  # [[x, y, z], ...] world, model tool point
@@ -207,6 +208,18 @@ class _Follower:
         return q_cmd, qdot
 
 
+def _tracking_error(model, q_cmd: np.ndarray, q_act: np.ndarray) -> float:
+    """Largest distance (m) between the commanded and the actual place of the arm's frames and
+    of the model's tool point."""
+    import torch
+    Q = torch.as_tensor(np.stack([q_cmd, q_act]), dtype=model.dtype, device=model.device)
+    with torch.no_grad():
+        origins, T_world_ee = model.kin.frame_origins(Q)  # (2, L, 3), (2, 4, 4)
+        tool = T_world_ee[:, :3, :3] @ model.tool.detach() + T_world_ee[:, :3, 3]
+    P = torch.cat([origins, tool[:, None]], dim=1)
+    return float((P[0] - P[1]).norm(dim=-1).max())
+
+
 def _latency_s(mode, wall_s: float) -> float:
     """Simulated seconds a plan that took ``wall_s`` of wall-clock time is charged."""
     if mode == "measured":
@@ -252,6 +265,8 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         if step % s.record_every == 0:
             T = world.T_world_gripper()
             result.task_point_path.append((T[:3, :3] @ tool + T[:3, 3]).round(5).tolist())
+            err = _tracking_error(model, q_cmd, world.get_q())
+            result.tracking_max_mm = max(result.tracking_max_mm, round(err * 1e3, 2))
         if frames is not None and s.frame_every and step % s.frame_every == 0:
             frames.append(world.render(480, 360))
 
