@@ -88,8 +88,7 @@ def main(argv=None) -> int:
         except TrainingFailed as e:  # train.py printed its reason; no traceback of ours on top
             print(f"plan.py: error: {e}", file=sys.stderr)
             return 2 if e.returncode == 2 else 1
-        print(format_table(payload["variants"], args.task))
-        print(f"latency mode: {settings.latency} (simulated time charged for each plan)")
+        print(format_table(payload["variants"], args.task, settings.latency))
         print(f"results: {out / 'results.json'}")
         return 0
 

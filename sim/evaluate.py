@@ -186,15 +186,21 @@ def summarize(runs: list[dict], variant: Variant, learning_time_s: float) -> dic
     """One variant's line of ``results.json``. Latencies, each ``{median, p95}`` in ms:
     ``initial_ms`` and ``replan_ms`` are the searches alone (the paper's planning latency);
     ``build_ms`` is the first landmark update (the roadmap's construction) before the first
-    plan, and ``reaction_ms`` a re-plan's landmark update (new step costs, new biased vertices
+    plan, ``improve_ms`` the anytime re-plans after a far move (the roadmap's growth and the
+    search on it), and ``reaction_ms`` a re-plan's landmark update (new step costs, new biased vertices
     after a far move) plus its search: the time from sensing a move to holding the new plan.
     Runs logged before the update was timed have no ``build_ms``/``replan_update_ms`` and are
     left out of those two."""
     init = [r["initial_ms"] for r in runs if not math.isnan(r["initial_ms"])]
     rep = [x for r in runs for x in r["replan_ms"]]
     build = [r["build_ms"] for r in runs if not math.isnan(r.get("build_ms", math.nan))]
-    react = [u + x for r in runs if len(r.get("replan_update_ms", ())) == len(r["replan_ms"])
-             for u, x in zip(r.get("replan_update_ms", ()), r["replan_ms"])]
+    react, improve = [], []
+    for r in runs:
+        if len(r.get("replan_update_ms", ())) != len(r["replan_ms"]):
+            continue  # logged before the update was timed
+        kinds = r.get("replan_kind") or ["move"] * len(r["replan_ms"])
+        for kind, u, x in zip(kinds, r["replan_update_ms"], r["replan_ms"]):
+            (react if kind == "move" else improve).append(u + x)
     return {
         "tool_landmark": variant.label_tool, "env_landmark": variant.label_env,
         "success_rate": float(np.mean([r["success"] for r in runs])) if runs else math.nan,
@@ -203,7 +209,9 @@ def summarize(runs: list[dict], variant: Variant, learning_time_s: float) -> dic
         "mean_fraction_in_bowl": float(np.mean([r["fraction_in_bowl"] for r in runs])) if runs else math.nan,
         "learning_time_s": learning_time_s,
         "initial_ms": _stats(init), "replan_ms": _stats(rep),
-        "build_ms": _stats(build), "reaction_ms": _stats(react),
+        "build_ms": _stats(build), "reaction_ms": _stats(react), "improve_ms": _stats(improve),
+        "latency_mode": sorted({r.get("latency", "none") for r in runs}),
+        "tracking_max_mm": max([r["tracking_max_mm"] for r in runs if "tracking_max_mm" in r], default=math.nan),
         "scenarios": [{"scenario": r["scenario"], "success": r["success"], "reason": r["reason"],
                        "fraction_in_bowl": r["fraction_in_bowl"]} for r in sorted(runs, key=lambda r: r["scenario"])],
     }
@@ -227,8 +235,12 @@ def _ms(stats: dict | None) -> str:
     return "-" if math.isnan(x) else f"{x:.0f}ms"
 
 
-def format_table(results: dict, task: str) -> str:
-    """The paper's table: medians of the latencies (``summarize``); '-' where none was measured."""
+PAPER_LATENCY_MS = {"powder": 182, "pour": 200}  # the paper's planning latency (Tables I, II; 12 cores)
+
+
+def format_table(results: dict, task: str, latency: str | None = None) -> str:
+    """The paper's table: medians of the latencies (``summarize``); '-' where none was measured.
+    ``latency``: the evaluation's latency mode, named under the table."""
     head = f"{'Tool landmark':<14} {'Environment landmark':<21} {'Success':>8} {'Learning':>9} " \
            f"{'Plan (init)':>12} {'Replan':>9} {'Reaction':>9}"
     lines = [f"{task}: success rate over {max((v['n_scenarios'] for v in results.values()), default=0)} "
@@ -238,7 +250,10 @@ def format_table(results: dict, task: str) -> str:
                      f"{v['learning_time_s']:>8.1f}s {_ms(v['initial_ms']):>12} {_ms(v['replan_ms']):>9} "
                      f"{_ms(v.get('reaction_ms')):>9}")
     lines.append("Plan and Replan: the search alone (the paper's latency); Reaction: a re-plan with the "
-                 "landmark update before it (new biased vertices after a far move)")
+                 "landmark update before it (or the roadmap's growth, for the anytime re-plan after a far move); "
+                 f"the paper: {PAPER_LATENCY_MS.get(task, '-')} ms on 12 cores")
+    if latency is not None:
+        lines.append(f"latency mode: {latency} (the simulated time each plan costs while the robot moves on)")
     return "\n".join(lines)
 
 

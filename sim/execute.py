@@ -119,6 +119,7 @@ class RunResult:
     n_replans: int = 0
     latency_mode: str = "none"  # ExecSettings.latency of the run
     charged_ms: list = field(default_factory=list)  # simulated time each re-plan took
+    replan_kind: list = field(default_factory=list)  # each re-plan's cause: "move" or "growth" (anytime)
     switches: int = 0  # re-plans that arrived and took over
     tracking_max_mm: float = 0.0  # largest distance of an arm frame or the tool point from where commanded
     plan_statuses: list = field(default_factory=list)
@@ -294,7 +295,7 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
     moved = scenario is None or scenario.bowl_after is None
     pending = None  # a plan on its way: (arrival step, PlanResult, elapsed in its first step)
 
-    def replan(work) -> None:
+    def replan(work, kind: str) -> None:
         """Run ``work() -> (PlanResult | None, update_s)`` now (wall clock) and let its plan
         arrive after the charged latency; the robot follows the current plan meanwhile."""
         nonlocal pending
@@ -305,6 +306,7 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         if res is None:
             return
         result.n_replans += 1
+        result.replan_kind.append(kind)
         result.replan_update_ms.append(update_s * 1e3)
         result.replan_ms.append(res.latency_s * 1e3)
         result.plan_statuses.append(res.status)
@@ -321,7 +323,7 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
             planner.update_landmarks(names, poses, grow=frozen)
             update_s = time.perf_counter() - tic
             return planner.plan(q_cmd, follow.t_now), update_s
-        replan(work)
+        replan(work, "move")
 
     def on_growth():
         def work():
@@ -329,7 +331,7 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
             grew = planner.grow()
             update_s = time.perf_counter() - tic
             return (planner.plan(q_cmd, follow.t_now) if grew else None), update_s
-        replan(work)
+        replan(work, "growth")
 
     while not follow.done or pending is not None:
         if pending is not None and step >= pending[0]:
