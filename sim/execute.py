@@ -11,20 +11,23 @@ configuration space is the plan's; only its timing is chosen here (``lfd.timing`
 
 The world does not wait for the planner. Every ``sense_period`` seconds the executor senses the
 landmarks; when a task-relevant one has moved more than ``replan_threshold`` the planner is asked
-for a new plan from the commanded configuration and the current time step, sensed at that
-moment. The plan takes ``latency`` of simulated time to arrive: "measured" charges the wall-clock
-time of the landmark update and the search, "none" none (the world is frozen while the planner
-works: deterministic tests), a number that many seconds. Meanwhile the robot goes on along its
-old plan (the bowl may already be elsewhere). When the new plan arrives, the robot retraces the
-waypoints it passed since the request (a motion it has just made) back to the configuration the
-plan starts from, and follows the new plan; while a plan is on its way no new one is asked for.
-After a far move the landmark update answers on the current roadmap and the biased regrowth
-(``TaskPlanner.grow``, seconds) runs as a second re-plan at the next reading, charged the same
-way: the robot executes the first answer while the roadmap grows (anytime). Every re-plan is
-recorded: ``replan_update_ms`` (landmark update or growth), ``replan_ms`` (the search,
-``PlanResult.latency_s``, what the paper reports), ``charged_ms`` (the simulated time it cost).
-``build_ms`` is the first update (the roadmap's construction), before the first plan's
-``initial_ms``; the arm holds at rest while the first plan is made.
+for a new plan. The plan takes ``latency`` of simulated time to arrive: "measured" charges the
+wall-clock time of the landmark update and the search, "none" none (the world is frozen while
+the planner works: deterministic tests), a number that many seconds. Meanwhile the robot goes on
+along its old plan (the bowl may already be elsewhere). The plan starts where the robot is
+expected to be when it arrives (the old plan's configuration and time step that far ahead: the
+landmark update's time, already spent, plus the last search's; with a fixed latency, that
+figure); it takes over when the robot gets there, or, if it arrives later than forecast, after
+the robot retraces the waypoints it passed since (a motion it has just made). While a plan is on
+its way no new one is asked for. After a far move the landmark update answers on the current
+roadmap and the biased regrowth (``TaskPlanner.grow``, seconds) runs as a second re-plan at the
+next reading, charged the same way: the robot executes the first answer while the roadmap grows
+(anytime). Every re-plan is recorded: ``replan_kind`` ("move" or "growth"), ``replan_update_ms``
+(landmark update or growth), ``replan_ms`` (the search, ``PlanResult.latency_s``, what the paper
+reports), ``charged_ms`` (the simulated time it cost), and ``retraced`` waypoints. ``build_ms``
+is the first update (the roadmap's construction), before the first plan's ``initial_ms``; the
+arm holds at rest while the first plan is made. ``tracking_max_mm``: the largest distance of an
+arm frame or the tool point from where it was commanded.
 
 Success is the paper's: nothing the arm or tool touches (table, containers, obstacles) and at least
 ``success_fraction`` of the particles inside the bowl once they have settled.
@@ -121,6 +124,7 @@ class RunResult:
     charged_ms: list = field(default_factory=list)  # simulated time each re-plan took
     replan_kind: list = field(default_factory=list)  # each re-plan's cause: "move" or "growth" (anytime)
     switches: int = 0  # re-plans that arrived and took over
+    retraced: int = 0  # waypoints retraced because a plan arrived after the robot passed its start
     tracking_max_mm: float = 0.0  # largest distance of an arm frame or the tool point from where commanded
     plan_statuses: list = field(default_factory=list)
     duration_s: float = 0.0
@@ -178,25 +182,36 @@ def _relevant(names, poses, keep) -> np.ndarray:
 
 
 class _Follower:
-    """The plan being executed: its timed segments, where the robot is along them, and the trail
-    of waypoints passed since a mark (to retrace them when a plan made earlier arrives)."""
+    """The plan being executed: its timed segments ``(q0, q1, duration, time_step)`` and the
+    robot's position along them, ``(i, t)``: segment i, t seconds into it (``i == len``: done)."""
 
-    def __init__(self, segs, step: int, profile: str):
-        self.segs, self.i, self.t, self.profile = segs, 0, 0.0, profile
-        self.entered = step  # sim step at which the current time step began
-        self.t_now = segs[0][3] if segs else 0
-        self.trail: list[np.ndarray] | None = None
+    def __init__(self, segs, profile: str, final_step: int, elapsed: float = 0.0):
+        self.segs, self.profile, self.final_step = segs, profile, final_step
+        self.elapsed0 = elapsed  # time already spent in the first segment's step
+        self.i, self.t = 0, 0.0
 
     @property
     def done(self) -> bool:
         return self.i >= len(self.segs)
 
-    def advance(self, step: int) -> tuple[np.ndarray, np.ndarray]:
+    @property
+    def position(self) -> tuple[int, float]:
+        return self.i, self.t
+
+    def step_at(self, pos) -> int:
+        return self.segs[pos[0]][3] if pos[0] < len(self.segs) else self.final_step
+
+    def q_at(self, pos) -> np.ndarray:
+        i, t = pos
+        if i >= len(self.segs):
+            return self.segs[-1][1]
+        q0, q1, dur, _ = self.segs[i]
+        prog, _ = profile_at(min(1.0, t / dur) if dur > 0 else 1.0, self.profile)
+        return q0 + prog * (q1 - q0)
+
+    def advance(self) -> tuple[np.ndarray, np.ndarray]:
         """One simulation step along the plan: ``(q_cmd, qdot)``."""
-        q0, q1, dur, t_seg = self.segs[self.i]
-        if t_seg != self.t_now:
-            self.entered = step
-        self.t_now = t_seg
+        q0, q1, dur, _ = self.segs[self.i]
         self.t += L.SIM_DT
         a = min(1.0, self.t / dur) if dur > 0 else 1.0
         prog, rate = profile_at(a, self.profile)
@@ -204,9 +219,39 @@ class _Follower:
         qdot = rate * (q1 - q0) / dur if dur > 0 and a < 1.0 else np.zeros_like(q0)
         if a >= 1.0:
             self.i, self.t = self.i + 1, 0.0
-            if self.trail is not None and np.any(q1 != q0):
-                self.trail.append(q1)
         return q_cmd, qdot
+
+    def predict(self, seconds: float) -> tuple[int, float]:
+        """Where the robot will be ``seconds`` from now (in whole simulation steps)."""
+        i, t = self.i, self.t
+        left = int(round(seconds / L.SIM_DT)) * L.SIM_DT
+        while i < len(self.segs) and left > 1e-12:
+            dur = self.segs[i][2]
+            steps_left = max(0.0, dur - t)
+            if left < steps_left - 1e-12:
+                return i, t + left
+            left -= steps_left
+            i, t = i + 1, 0.0
+        return i, t
+
+    def elapsed_at(self, pos) -> float:
+        """Time spent in the time step of ``pos`` when the robot is there."""
+        i, t = pos
+        if i >= len(self.segs):
+            return 0.0
+        step, spent = self.segs[i][3], t
+        for k in range(i - 1, -1, -1):
+            if self.segs[k][3] != step:
+                return spent
+            spent += self.segs[k][2]
+        return spent + self.elapsed0
+
+    def back_to(self, pos, q_now: np.ndarray) -> list[np.ndarray]:
+        """Waypoints from ``q_now`` (the current position) back along the plan to ``pos``."""
+        q_to = self.q_at(pos)
+        back = [q_now] + [self.segs[k][0] for k in range(min(self.i, len(self.segs) - 1), pos[0], -1)]
+        back.append(q_to)
+        return [q for j, q in enumerate(back) if j == 0 or np.any(q != back[j - 1])]
 
 
 def _tracking_error(model, q_cmd: np.ndarray, q_act: np.ndarray) -> float:
@@ -288,23 +333,36 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
 
     def timed(configurations, time_steps, elapsed=0.0):
         return _Follower(plan_segments(configurations, time_steps, vmax, dt, s.speed, clock, accel,
-                                       elapsed=elapsed), step, s.profile)
+                                       elapsed=elapsed), s.profile, int(time_steps[-1]), elapsed)
 
     follow = timed(res.configurations, res.time_steps)
     sense_every = max(1, int(round(s.sense_period / L.SIM_DT)))
     moved = scenario is None or scenario.bowl_after is None
-    pending = None  # a plan on its way: (arrival step, PlanResult, elapsed in its first step)
+    pending = None  # a plan on its way: {"arrive": sim step, "res", "pos": where it starts}
+    search_s = {"move": res.latency_s, "growth": res.latency_s}  # the last search of each kind
 
-    def replan(work, kind: str) -> None:
-        """Run ``work() -> (PlanResult | None, update_s)`` now (wall clock) and let its plan
-        arrive after the charged latency; the robot follows the current plan meanwhile."""
+    def forecast(kind: str, spent_s: float) -> float:
+        """Seconds from now until a plan being made (``spent_s`` of it done) arrives."""
+        if s.latency == "none":
+            return 0.0
+        if s.latency == "measured":
+            return spent_s + search_s[kind]
+        return float(s.latency)
+
+    def replan(kind: str, names=None, poses=None) -> None:
+        """A new plan, made now (wall clock) from where the robot is expected to be when it
+        arrives, the charged latency later; the robot follows the current plan meanwhile."""
         nonlocal pending
-        t_elapsed = (step - follow.entered) * L.SIM_DT
         tic = time.perf_counter()
-        res, update_s = work()
+        if kind == "move":
+            planner.update_landmarks(names, poses, grow=frozen)
+        elif not planner.grow():
+            return  # the landmarks stayed near a place the roadmap was grown for
+        update_s = time.perf_counter() - tic
+        pos = follow.predict(forecast(kind, update_s))
+        res = planner.plan(follow.q_at(pos), follow.step_at(pos))
         wall = time.perf_counter() - tic
-        if res is None:
-            return
+        search_s[kind] = res.latency_s
         result.n_replans += 1
         result.replan_kind.append(kind)
         result.replan_update_ms.append(update_s * 1e3)
@@ -314,58 +372,44 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         charged = _latency_s(s.latency, wall)
         result.charged_ms.append(charged * 1e3)
         if res.ok:
-            follow.trail = [q_cmd.copy()]
-            pending = (step + int(round(charged / L.SIM_DT)), res, t_elapsed)
-
-    def on_move(names, poses):
-        def work():
-            tic = time.perf_counter()
-            planner.update_landmarks(names, poses, grow=frozen)
-            update_s = time.perf_counter() - tic
-            return planner.plan(q_cmd, follow.t_now), update_s
-        replan(work, "move")
-
-    def on_growth():
-        def work():
-            tic = time.perf_counter()
-            grew = planner.grow()
-            update_s = time.perf_counter() - tic
-            return (planner.plan(q_cmd, follow.t_now) if grew else None), update_s
-        replan(work, "growth")
+            pending = {"arrive": step + int(round(charged / L.SIM_DT)), "res": res, "pos": pos}
 
     while not follow.done or pending is not None:
-        if pending is not None and step >= pending[0]:
-            _, new, elapsed = pending
+        # a plan that arrived takes over once the robot is where it starts (or has passed it:
+        # then the robot retraces the waypoints back to there, a motion it has just made)
+        if pending is not None and step >= pending["arrive"] and \
+                (follow.done or follow.position >= pending["pos"]):
+            new, pos = pending["res"], pending["pos"]
             pending = None
-            # back along the waypoints passed since the plan was asked for, then the new plan
-            back = [q_cmd, *follow.trail[:0:-1], new.configurations[0]]
-            back = [q for i, q in enumerate(back) if i == 0 or np.any(q != back[i - 1])]
+            back = follow.back_to(pos, q_cmd)
             confs = np.concatenate([np.asarray(back[:-1]).reshape(-1, len(q_cmd)), new.configurations])
             steps = np.concatenate([np.full(len(back) - 1, new.time_steps[0]), new.time_steps])
-            follow = timed(confs, steps, elapsed)
+            follow = timed(confs, steps, follow.elapsed_at(pos))
             result.switches += 1
+            result.retraced += len(back) - 1
             if follow.done:
                 break
         if follow.done:  # the old plan ended before the new one arrived: hold
             qdot = np.zeros_like(q_cmd)
         else:
-            q_cmd, qdot = follow.advance(step)
+            q_cmd, qdot = follow.advance()
         sim_step()
         if step % sense_every or pending is not None:
             continue
-        if not moved and follow.t_now >= scenario.move_at_step:
+        t_now = follow.step_at(follow.position)
+        if not moved and t_now >= scenario.move_at_step:
             world.move_object("bowl", scenario.bowl_after)
             moved = True
         names, poses = world.sensed_landmarks()
         now = _relevant(names, poses, keep)
         if now.shape == planned_at.shape and np.abs(now - planned_at).max() <= s.replan_threshold:
             if getattr(planner, "growth_pending", False) and result.n_replans < s.max_replans:
-                on_growth()  # anytime: the roadmap grows for the new place, then a better plan
+                replan("growth")  # anytime: the roadmap grows for the new place, then a better plan
             continue
         if result.n_replans >= s.max_replans:
             continue
         planned_at = now
-        on_move(names, poses)
+        replan("move", names, poses)
     settle = int(s.settle_s / L.SIM_DT)
     qdot = np.zeros_like(q_cmd)
     for k in range(settle):
