@@ -15,9 +15,6 @@ permitted transition, and the search often takes it because a path with fewer ed
 the time it spends from step ``a`` to step ``b`` is ``clock[b] - clock[a]``, the demonstrations'
 mean. Pouring and dumping need that time: a pitcher tilted for half the demonstrated time
 leaves liquid in it.
-
-The planner's optional dwell weights (``dwell_intervals``, ``DWELLS``) come from the same chain:
-how many sampling intervals a time edge charges for the step it leaves (``lfd.stcost``).
 """
 
 from __future__ import annotations
@@ -26,11 +23,9 @@ import math
 
 import numpy as np
 
-__all__ = ["PROFILES", "DWELLS", "expected_sojourn", "step_clock", "dwell_intervals", "profile_at",
-           "plan_segments"]
+__all__ = ["PROFILES", "expected_sojourn", "step_clock", "profile_at", "plan_segments"]
 
 PROFILES = ("min-jerk", "linear")
-DWELLS = ("interval", "expected", "occupancy")
 # min-jerk s(a) = 10a^3 - 15a^4 + 6a^5 on a in [0, 1]: peak ds/da = 15/8, peak d2s/da2 = 10/sqrt(3)
 _MJ_PEAK_V, _MJ_PEAK_A = 1.875, 10.0 / math.sqrt(3.0)
 _MIN_LEAVE = 1e-3  # smallest probability of leaving a step (caps a step's expected stay at 1000 dt)
@@ -68,7 +63,7 @@ def step_clock(log_trans: np.ndarray, offsets, dt: float) -> np.ndarray:
     with ``h = 0`` from ``t`` on (one sample of ``dt`` per visit, self-transitions included, so a
     step the chain usually skips adds little and one it always visits adds its full sojourn).
     ``clock[t + 1] - clock[t]`` is the chain's mean time in step t per run, runs that skip it
-    included (``lfd.stcost``'s occupancy dwell); it equals ``expected_sojourn[t]`` when no
+    included; it equals ``expected_sojourn[t]`` when no
     transition skips a step.
     """
     P, offsets = _checked(log_trans, offsets)
@@ -83,28 +78,6 @@ def step_clock(log_trans: np.ndarray, offsets, dt: float) -> np.ndarray:
             h[s] = (dt + ahead) / max(1.0 - stay[s], _MIN_LEAVE)
         clock[target] = h[0]
     return np.maximum.accumulate(clock)
-
-
-def dwell_intervals(dwell: str, log_trans: np.ndarray, offsets) -> np.ndarray:
-    """``(T,)`` further sampling intervals a plan's time edge charges for the step it leaves.
-
-    ``"interval"``: none (the paper's: a time edge is one interval). ``"expected"``: the rest of
-    a visit's expected stay, ``p / (1 - p)`` with ``p = p(t | t)``. ``"occupancy"``: the rest of
-    the chain's mean time in the step per run, ``clock[t + 1] - clock[t] - 1`` in intervals (at
-    least 0; ``step_clock``). The last step is never left: 0. ``log_trans (T, K)`` as in
-    ``step_clock``, ``offsets`` increasing. Why and how ``lfd.stcost`` charges them: its *Dwell* notes.
-    """
-    if dwell not in DWELLS:
-        raise ValueError(f"Expected dwell in {DWELLS}, got {dwell!r}")
-    if dwell == "expected":
-        out = expected_sojourn(log_trans, offsets, 1.0) - 1.0
-    elif dwell == "occupancy":
-        clock = step_clock(log_trans, offsets, 1.0)  # (T,) in intervals
-        out = np.maximum(np.diff(clock, append=clock[-1]) - 1.0, 0.0)
-    else:
-        out = np.zeros(len(_checked(log_trans, offsets)[0]))
-    out[-1] = 0.0
-    return out
 
 
 def profile_at(a: float, profile: str = "min-jerk") -> tuple[float, float]:

@@ -280,8 +280,11 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
         for line in text.splitlines():
             try:
                 r = json.loads(line)
-                if (r.get("latency", "none") == settings.latency  # runs of another setting: redone
-                        and r.get("pace") == EXEC_PACE and "dwell" not in r):
+                # runs of another setting are redone: logged without a latency mode, a run was
+                # made in a frozen world ("none"); with a dwell other than the paper's interval
+                # (an option since removed), with other edge costs
+                if (r.get("latency", "none") == settings.latency and r.get("dwell", "interval") == "interval"
+                        and r.get("pace") == EXEC_PACE):
                     done[(r["variant"], r["scenario"])] = r
             except (ValueError, KeyError):
                 continue  # a line cut by an interruption

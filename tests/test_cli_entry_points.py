@@ -101,10 +101,14 @@ def test_closed_pipe_ends_quietly(results, cid):
     assert r.returncode == EXIT_BROKEN_PIPE
 
 
-def test_plan_dwell_choices_are_the_librarys(monkeypatch):
-    """plan.py lists ``--dwell`` itself (its parser imports nothing heavy); every library option parses."""
+def test_plan_latency_modes(monkeypatch):
+    """plan.py --latency: measured (default), none, or seconds >= 0; anything else is a usage error."""
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1]))
     import plan
-    from lfd.stcost import DWELLS
-    for choice in DWELLS:
-        assert plan.parse(["--model", "x", "--dwell", choice]).dwell == choice
+    from lfd.cli import UsageError
+    assert plan.parse(["--model", "x"]).latency == "measured"
+    assert plan.parse(["--model", "x", "--latency", "none"]).latency == "none"
+    assert plan.parse(["--model", "x", "--latency", "0.25"]).latency == "0.25"
+    for bad in ("soon", "-1", "nan", "inf"):
+        with pytest.raises(UsageError, match="--latency"):
+            plan.parse(["--model", "x", "--latency", bad])

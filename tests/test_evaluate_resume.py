@@ -54,10 +54,12 @@ def models(tmp_path) -> Path:
 
 
 def _row(variant: str, scenario: int, success: bool = True) -> dict:
-    """A run as ``run_one`` reports it (the keys ``summarize`` reads)."""
+    """A run as ``run_one`` reports it with the default latency mode (the keys ``summarize`` and
+    the resume read)."""
     return {"variant": variant, "scenario": scenario, "success": success, "reason": "fake",
             "contacts": [], "fraction_in_bowl": 1.0 if success else 0.0, "initial_ms": 5.0,
-            "replan_ms": [1.0, 2.0], "wall_s": 0.0, "roadmap_vertices": 10, "pace": ev.EXEC_PACE}
+            "replan_ms": [1.0, 2.0], "wall_s": 0.0, "roadmap_vertices": 10, "pace": ev.EXEC_PACE,
+            "latency": "measured"}
 
 
 class FakeRunOne:
@@ -69,12 +71,12 @@ class FakeRunOne:
         self.interrupt_at = interrupt_at
 
     def __call__(self, task, scenario, variant, model_dir, roadmap_size, video_path=None, with_path=False,
-                 dwell="interval"):
+                 latency="measured"):
         assert task == TASK and Path(model_dir).name == variant.model_key
         if self.interrupt_at is not None and len(self.calls) + 1 == self.interrupt_at:
             raise KeyboardInterrupt
         self.calls.append((variant.name, scenario.seed))
-        row = {**_row(variant.name, scenario.seed), "dwell": dwell}
+        row = {**_row(variant.name, scenario.seed), "latency": latency}
         if with_path:  # the executed tool point, as sim.execute records it
             row["task_point_path"] = [[0.5, 0.1 * scenario.seed, 0.0], [0.6, 0.2, 0.1], [0.7, 0.3, 0.2]]
         return row
@@ -130,6 +132,7 @@ def test_interrupted_evaluation_resumes_with_only_the_missing_runs(tmp_path, mod
     # every run's task-point path is on disk, named by its row, and the row stays small
     for line in (out / "runs.jsonl").read_text().splitlines():
         r = json.loads(line)
+        assert r["task_point_path"] == f"paths/{r['variant']}_measured_{r['scenario']}.npy"
         path = np.load(out / r["task_point_path"])
         assert path.shape == (3, 3) and path[0, 1] == pytest.approx(0.1 * r["scenario"])
 
@@ -185,23 +188,39 @@ def test_run_after_a_truncated_line_is_not_lost(tmp_path, models, monkeypatch):
     assert again.calls == []
 
 
-def test_runs_of_another_dwell_setting_are_run_again(tmp_path, models, monkeypatch):
-    """A log made with one ``dwell`` is not counted for another (rows without the key: "interval")."""
+def test_runs_of_another_latency_mode_are_run_again(tmp_path, models, monkeypatch):
+    """A log made with one latency mode is not counted for another; rows logged without the key
+    were made in a frozen world ("none"), and rows of a removed dwell option other than the
+    paper's interval are redone."""
     out = tmp_path / "eval"
     monkeypatch.setattr(ev, "run_one", FakeRunOne())
     ev.evaluate(_settings(), out, models)
     again = FakeRunOne()
     monkeypatch.setattr(ev, "run_one", again)
-    payload = ev.evaluate(replace(_settings(), dwell="expected"), out, models)
+    payload = ev.evaluate(replace(_settings(), latency="none"), out, models)
     assert again.calls == _all_pairs()
-    assert payload["dwell"] == "expected"
+    assert payload["latency"] == "none"
+    assert all(v["latency_mode"] == ["none"] for v in payload["variants"].values())
     # both settings' rows stay in the log, each naming its own task-point path
     rows = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
     files = [r["task_point_path"] for r in rows]
     assert len(rows) == 2 * len(_all_pairs()) and len(set(files)) == len(files)
     assert all((out / f).is_file() for f in files)
-    with pytest.raises(ValueError, match="dwell must be one of"):
-        replace(_settings(), dwell="forever")
+    # old rows: no latency key (a frozen world) counts for "none"; a dwell of "expected" does not
+    log = out / "runs.jsonl"
+    old = [dict(r) for r in rows if r["latency"] == "none"]
+    for i, r in enumerate(old):
+        del r["latency"]
+        if i == 0:
+            r["dwell"] = "expected"
+    log.write_text("".join(json.dumps(r) + "\n" for r in old))
+    third = FakeRunOne()
+    monkeypatch.setattr(ev, "run_one", third)
+    ev.evaluate(replace(_settings(), latency="none"), out, models)
+    assert third.calls == [(old[0]["variant"], old[0]["scenario"])]
+    with pytest.raises(ValueError, match="latency must be"):
+        replace(_settings(), latency="forever")
+    assert replace(_settings(), latency=0.5).latency == "0.5"
 
 
 def test_runs_paced_before_the_clock_are_run_again(tmp_path, models, monkeypatch):

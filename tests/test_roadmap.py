@@ -1,4 +1,5 @@
-"""PRM* roadmap over callables: connection rule, incremental growth, lazy edge checks, sampling."""
+"""PRM* roadmap over callables: connection rule, incremental growth, edge ids, sampling (edges are
+checked by the planner: lfd.edgestore)."""
 
 import math
 
@@ -59,28 +60,57 @@ def test_add_vertices_grows_without_rebuilding():
         assert set(nearest.tolist()) <= set(rm.graph.adj[int(i)])
 
 
-def test_vertices_are_free_and_lazy_edges_are_checked_on_use():
+def test_vertices_are_free_and_edges_are_left_to_the_planner():
+    """The roadmap checks its vertices, never its edges (edge state belongs to lfd.edgestore):
+    building, growing and extra edges call no ``segment_fn`` and keep the edges the box cuts;
+    ``segment_collides`` passes its ends to ``segment_fn`` and returns its answer, every call."""
     rng = np.random.default_rng(3)
-    rm = Roadmap.build(uniform(rng), 250, in_box, segment_hits_box)
+    calls, answer = [], [True]
+
+    def segment_fn(q1, q2):
+        calls.append((np.array(q1), np.array(q2)))
+        return answer[0]
+    rm = Roadmap.build(uniform(rng), 250, in_box, segment_fn)
+    ids = rm.add_vertices(rng.uniform(-1, 1, (30, 2)))
+    rm.add_edges(np.stack([ids[:-1], ids[1:]], axis=1))
     assert not any(in_box(q) for q in rm.vertices)
-    assert rm.counters["segment_checks"] == 0  # lazy: nothing checked at build time
-    for v in range(0, rm.n, 5):
-        for w in rm.free_neighbors(v):
-            assert not segment_hits_box(rm.vertices[v], rm.vertices[w])
-    assert rm.counters["edges_removed"] > 0  # the box cuts some edges
-    checks = rm.counters["segment_checks"]
-    rm.free_neighbors(0)
-    assert rm.counters["segment_checks"] == checks  # results are cached
+    assert calls == [] and rm.counters["segment_checks"] == 0
+    V = rm.vertices
+    cut = [(u, w) for u, w in rm.graph.edges if segment_hits_box(V[u], V[w])]
+    assert len(cut) > 10  # the box cuts edges, and they stay in the graph
+    u, w = cut[0]
+    assert rm.segment_collides(V[u], V[w]) is True
+    answer[0] = False  # the answer is segment_fn's, not the roadmap's geometry
+    assert rm.segment_collides(V[u], V[w]) is False
+    assert len(calls) == 2 and rm.counters["segment_checks"] == 2  # asked again: not cached
+    for q1, q2 in calls:
+        np.testing.assert_array_equal(q1, V[u])
+        np.testing.assert_array_equal(q2, V[w])
 
 
-def test_eager_roadmap_has_only_free_edges():
+def test_edge_ids_index_the_edge_array():
+    """``edge_array()[eid]`` are the ends of the graph's edge with that ``eid``: ids 0..E-1 in the
+    order added, rows kept as the roadmap grows (new edges appended) and after extra edges."""
     rng = np.random.default_rng(4)
-    rm = Roadmap.build(uniform(rng), 150, in_box, segment_hits_box,
-                       settings=RoadmapSettings(lazy=False))
-    assert rm.counters["segment_checks"] > 0
-    for u, v in rm.graph.edges:
-        assert not segment_hits_box(rm.vertices[u], rm.vertices[v])
-    assert rm.check_all_edges() == 0
+    rm = Roadmap.build(uniform(rng), 150, in_box, segment_hits_box)
+    first = rm.edge_array().copy()
+    assert len(first) == rm.n_edges == rm.graph.number_of_edges() > 0
+    ids = rm.add_vertices(rng.uniform(-1, 1, (40, 2)))
+    pairs = np.stack([ids[:-1], ids[1:]], axis=1)
+    new = [[int(i), int(j)] for i, j in pairs if not rm.graph.has_edge(int(i), int(j))]
+    n_before = rm.n_edges
+    assert rm.add_edges(pairs) == len(new) > 0
+    assert rm.add_edges(pairs) == 0  # already there: no new ids
+    ends = rm.edge_array()
+    assert len(ends) == rm.n_edges == rm.graph.number_of_edges() == n_before + len(new)
+    assert ends[n_before:].tolist() == new  # the extra edges, in the order given
+    np.testing.assert_array_equal(ends[:len(first)], first)
+    eids = sorted(e for _, _, e in rm.graph.edges(data="eid"))
+    assert eids == list(range(rm.n_edges))
+    for u, w, e in rm.graph.edges(data="eid"):
+        assert {int(ends[e, 0]), int(ends[e, 1])} == {u, w}
+    with pytest.raises(ValueError):
+        ends[0, 0] = 5  # read-only
 
 
 def test_batch_collision_fn_is_used():
@@ -122,16 +152,6 @@ def test_ik_biased_samples_keeps_successes():
 
     Q = ik_biased_samples(targets, ik_fn)
     np.testing.assert_array_equal(Q, [[0, 0, 0], [2, 2, 2]])
-
-
-def test_connect_point_does_not_grow_the_roadmap():
-    rng = np.random.default_rng(8)
-    rm = Roadmap.build(uniform(rng), 100, in_box, segment_hits_box)
-    n, e = rm.n, rm.graph.number_of_edges()
-    for _ in range(50):
-        ids = rm.connect_point(rng.uniform(-1, 1, 2))
-        assert len(ids) <= k_prm_star(101, 2)
-    assert (rm.n, rm.graph.number_of_edges()) == (n, e)
 
 
 def test_errors_name_the_argument():

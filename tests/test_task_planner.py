@@ -1,4 +1,4 @@
-"""TaskPlanner glue, FK cache, chain edges (no simulator needed; plan timing: test_timing.py)."""
+"""TaskPlanner glue, its step cost, chain edges (no simulator needed; plan timing: test_timing.py)."""
 
 from __future__ import annotations
 
@@ -7,11 +7,13 @@ import math
 import numpy as np
 import pytest
 import torch
+from scipy.spatial.transform import Rotation
 
 from lfd.kinematics import KinematicModel
-from lfd.model import TaskModel
+from lfd.model import TaskModel, logdet_tensor
 from lfd.robots import BAXTER_LEFT
-from lfd.task_planner import TaskPlanner, TaskPlannerSettings, _FKCache, chain_edges
+from lfd.stepcost import ModelStepCost
+from lfd.task_planner import TaskPlanner, TaskPlannerSettings, chain_edges
 
 
 @pytest.fixture(scope="module")
@@ -34,18 +36,6 @@ def _model(kin, T=6):
     log_trans[-2, 2] = -math.inf
     return TaskModel(torch.tensor([0.0, 0.0, 0.1], dtype=torch.float64), torch.ones(1, dtype=torch.float64),
                      mu, sigma_inv, log_trans, ["bowl"], BAXTER_LEFT, kin=kin)
-
-
-def test_fk_cache_equals_fk(kin):
-    cache = _FKCache(kin, max_rows=500)
-    Q = kin.sample_uniform(200, generator=torch.Generator().manual_seed(1))
-    mixed = torch.cat([Q[:50], kin.sample_uniform(30), Q[10:20]])
-    torch.testing.assert_close(cache(Q), kin.fk(Q))
-    torch.testing.assert_close(cache(mixed), kin.fk(mixed))
-    assert cache.hits >= 60
-    for _ in range(5):  # bounded: past max_rows it starts afresh
-        cache(kin.sample_uniform(200))
-    assert cache.rows <= 500
 
 
 def test_chain_edges_join_consecutive_valid_samples():
@@ -72,32 +62,51 @@ def test_task_planner_plans_and_reports_missing_landmark(kin):
     assert planner.plan(q0, 0).status == "missing_landmark"
 
 
-@pytest.mark.parametrize("cost_floor", ["per-step", "global"])
-def test_cost_floor_per_step_is_the_models_log_det(kin, cost_floor):
-    """'per-step' hands the planner each step's s log|Sigma_t| as its floor, so a vertex's shifted
-    cost is its Mahalanobis term (>= 0, 0 at the mean); 'global' keeps one estimated shift."""
-    model = _model(kin)
+def _pose(rotvec, position):
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
+    T[:3, 3] = position
+    return T
+
+
+def test_step_cost_is_the_models_mahalanobis_term(kin):
+    """The planner's step cost is ``ModelStepCost``: per configuration and step, ``step_nll`` less
+    ``s log|Sigma_t|`` (full covariances, s != 1, two rotated landmarks); prepared once, it follows
+    the landmarks when they move."""
+    base = _model(kin)
+    T, F = base.mu.shape
+    g = torch.Generator().manual_seed(5)
+    L = torch.tril(0.3 * torch.randn(T, F, F, generator=g, dtype=torch.float64), -1)
+    sigma_inv = L + torch.diag_embed(torch.exp(0.5 * torch.randn(T, F, generator=g, dtype=torch.float64)))
+    model = TaskModel(torch.tensor([0.02, -0.01, 0.1], dtype=torch.float64),
+                      torch.tensor([0.3, 0.7], dtype=torch.float64), base.mu, sigma_inv, base.log_trans,
+                      ["bowl", "cup"], BAXTER_LEFT, logdet_scale=0.6, kin=kin)
     planner = TaskPlanner(model, lambda q: False, lambda a, b: False,
-                          settings=TaskPlannerSettings(n_vertices=60, seed=0, cost_floor=cost_floor))
-    bowl = np.eye(4)[None]
-    bowl[0, :3, 3] = [0.7, 0.4, -0.1]
-    planner.update_landmarks(["marker", "bowl"], np.concatenate([np.eye(4)[None], bowl]))
+                          settings=TaskPlannerSettings(n_vertices=60, seed=0))
+    names = ["marker", "cup", "bowl"]
+    poses = np.stack([np.eye(4), _pose([0.0, 0.0, 0.8], [0.6, -0.2, 0.0]), _pose([0.3, -0.2, 0.1], [0.7, 0.4, -0.1])])
+    planner.update_landmarks(names, poses)
     assert planner.plan(model.mu[0, :7].numpy(), 0).ok
-    floor = planner.planner.costs.settings.nll_floor
-    if cost_floor == "global":
-        assert floor is None
-        return
-    logdet = model.logdet_scale * -2.0 * torch.log(torch.diagonal(model.sigma_inv, dim1=-2, dim2=-1)).sum(-1)
-    np.testing.assert_allclose(floor, logdet.numpy(), rtol=1e-12)
-    Q = planner.roadmap._buf[:20]
-    raw = model.step_nll(torch.as_tensor(Q), landmarks=planner._landmarks).numpy()
-    ell = planner.planner.costs.ell(raw)
-    assert (ell >= 0).all()
-    f = model.features(torch.as_tensor(Q), landmarks=planner._landmarks)
-    maha = (torch.einsum("tij,ntj->nti", model.sigma_inv, f[:, None, :] - model.mu[None]) ** 2).sum(-1)
-    np.testing.assert_allclose(ell, maha.numpy(), rtol=1e-9, atol=1e-9)
-    with pytest.raises(ValueError, match="cost_floor must be one of"):
-        TaskPlannerSettings(cost_floor="none")
+    cost = planner.planner.edges.step_cost
+    assert isinstance(cost, ModelStepCost) and cost.model is model
+    Q = np.concatenate([planner.roadmap.vertices[:20],
+                        kin.sample_uniform(30, generator=torch.Generator().manual_seed(6)).numpy()])
+    parts = cost.prepare(Q)
+    floor = model.logdet_scale * logdet_tensor(model.sigma_inv)  # (T,) s log|Sigma_t|
+    assert float(floor.abs().min()) > 0.1  # the floor left out is not zero
+    moved = poses.copy()
+    moved[2] = _pose([0.0, 0.5, -0.2], [0.5, 0.1, 0.2])
+    got = []
+    for sensed in (poses, moved):
+        landmarks = model.select_landmarks(names, sensed)
+        Qt = torch.as_tensor(Q)
+        want = (model.step_nll(Qt, kin.fk(Qt), landmarks) - floor).numpy()  # (N, T)
+        got.append(cost.evaluate(parts, landmarks))
+        assert got[-1].shape == (len(Q), T) and (want > 1.0).any()
+        np.testing.assert_allclose(got[-1], want, rtol=1e-9, atol=1e-9 * np.abs(want).max())
+    assert np.abs(got[1] - got[0]).max() > 1.0  # the move changes the costs
+    planner.update_landmarks(names, moved)
+    torch.testing.assert_close(planner._landmarks, model.select_landmarks(names, moved))
 
 
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])

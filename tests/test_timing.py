@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lfd.timing import dwell_intervals, expected_sojourn, plan_segments, profile_at, step_clock
+from lfd.timing import expected_sojourn, plan_segments, profile_at, step_clock
 
 VMAX = np.array([1.5] * 4 + [4.0] * 3)
 
@@ -80,26 +80,6 @@ def test_skipping_steps_keeps_the_demonstrated_time():
     skip = plan_segments(q[:3], np.array([0, 2, 4]), VMAX, dt, 0.5, clock=clock)
     assert sum(s[2] for s in every) == pytest.approx(clock[4])
     assert sum(s[2] for s in skip) == pytest.approx(clock[4])
-
-
-def test_dwell_intervals_are_the_stays_in_sampling_intervals():
-    """The planner's dwell weights: the rest of a visit (expected) or of the per-run time in the
-    step (occupancy), in intervals, none for the last step; equal when no transition skips."""
-    eps = 1e-12
-    log_trans = np.log(np.array([[0.9, 0.1, eps], [0.5, 0.05, 0.45], [0.95, 0.05, eps],
-                                 [0.6, 0.3, 0.1], [1.0, eps, eps]]))
-    offsets = (0, 1, 2)
-    assert np.all(dwell_intervals("interval", log_trans, offsets) == 0.0)
-    np.testing.assert_allclose(dwell_intervals("expected", log_trans, offsets), [9.0, 1.0, 19.0, 1.5, 0.0])
-    occ = dwell_intervals("occupancy", log_trans, offsets)
-    # by hand: 10 intervals in step 0 per run; step 1 always entered (2 per visit); step 2 entered
-    # from step 1 one run in ten and then held 20 intervals: 2 per run; step 3 held 2.5 intervals
-    np.testing.assert_allclose(occ, [9.0, 1.0, 1.0, 1.5, 0.0], atol=1e-6)
-    chain = _chain(np.random.default_rng(3), 8, (0, 1))
-    np.testing.assert_allclose(dwell_intervals("occupancy", chain, (0, 1)),
-                               dwell_intervals("expected", chain, (0, 1)), atol=1e-9)
-    with pytest.raises(ValueError, match="Expected dwell in"):
-        dwell_intervals("sojourn", log_trans, offsets)
 
 
 def test_plan_segments_respect_velocity_limits_and_pace():
