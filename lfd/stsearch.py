@@ -20,7 +20,10 @@ It is never materialized (~n T k edges: 1M at n = 1,000, T = 24). Two pieces sea
 * ``astar``: A* from the robot's node with ``H`` as the heuristic. On the graph ``H`` was
   computed for, A* expands little more than the optimal path; after the planner drops edges
   found in collision, ``H`` of the larger graph is still a consistent lower bound, so A* stays
-  optimal and explores only around the dropped edges.
+  optimal and explores only around the dropped edges. It reads the roadmap through networkx's
+  public adjacency (``graph.adj[v]`` and its ``eid`` attributes, cached as arrays); running
+  ``nx.astar_path`` itself would need the product graph materialized (17 s and 320 MB at
+  n = 1,000, measured) or networkx's internals overridden (docs/DESIGN.md).
 """
 
 from __future__ import annotations
