@@ -313,10 +313,6 @@ class EdgeStore:
         return self.state[eids] == FREE
 
     # ------------------------------------------------------------------ costs
-    @property
-    def has_landmarks(self) -> bool:
-        return self._landmarks is not None
-
     def costs(self) -> tuple[np.ndarray, np.ndarray]:
         """``(ell (n, T), W (E, T))`` for the current landmarks, computed now if stale.
         May raise ``LookupError`` or ``lfd.stepcost.CostError`` from the step cost."""

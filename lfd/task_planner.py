@@ -273,7 +273,7 @@ class TaskPlanner:
         self._maybe_regrow()
         return self.roadmap.n > before
 
-    def _keypoints(self, Q) -> np.ndarray:
+    def keypoints(self, Q) -> np.ndarray:
         """``Q (N, d) -> (N, K, 3)``: the arm's link origins and the tool point, world frame."""
         Q = torch.as_tensor(np.array(Q, dtype=float), dtype=self.model.dtype, device=self.model.device)
         with torch.no_grad():
@@ -333,7 +333,7 @@ class TaskPlanner:
             self.roadmap, ModelStepCost(self.model), self.model.trans_cost.detach().cpu().numpy(),
             dt=float(self.model.task.dt) if self.model.task else 0.1,
             vmax=self.kin.velocity.cpu().numpy(), offsets=self.model.offsets, settings=s.planner,
-            keypoint_fn=self._keypoints)
+            keypoint_fn=self.keypoints)
 
     def _verdict(self, reached: np.ndarray) -> np.ndarray:
         """Task-relevant time steps whose tool-point targets no sampled execution reached

@@ -254,16 +254,11 @@ class _Follower:
         return [q for j, q in enumerate(back) if j == 0 or np.any(q != back[j - 1])]
 
 
-def _tracking_error(model, q_cmd: np.ndarray, q_act: np.ndarray) -> float:
+def _tracking_error(planner, q_cmd: np.ndarray, q_act: np.ndarray) -> float:
     """Largest distance (m) between the commanded and the actual place of the arm's frames and
-    of the model's tool point."""
-    import torch
-    Q = torch.as_tensor(np.stack([q_cmd, q_act]), dtype=model.dtype, device=model.device)
-    with torch.no_grad():
-        origins, T_world_ee = model.kin.frame_origins(Q)  # (2, L, 3), (2, 4, 4)
-        tool = T_world_ee[:, :3, :3] @ model.tool.detach() + T_world_ee[:, :3, 3]
-    P = torch.cat([origins, tool[:, None]], dim=1)
-    return float((P[0] - P[1]).norm(dim=-1).max())
+    of the model's tool point (``TaskPlanner.keypoints``)."""
+    P = planner.keypoints(np.stack([q_cmd, q_act]))  # (2, K, 3)
+    return float(np.linalg.norm(P[0] - P[1], axis=-1).max())
 
 
 def _latency_s(mode, wall_s: float) -> float:
@@ -311,7 +306,7 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         if step % s.record_every == 0:
             T = world.T_world_gripper()
             result.task_point_path.append((T[:3, :3] @ tool + T[:3, 3]).round(5).tolist())
-            err = _tracking_error(model, q_cmd, world.get_q())
+            err = _tracking_error(planner, q_cmd, world.get_q())
             result.tracking_max_mm = max(result.tracking_max_mm, round(err * 1e3, 2))
         if frames is not None and s.frame_every and step % s.frame_every == 0:
             frames.append(world.render(480, 360))
