@@ -16,8 +16,10 @@ from lfd.model import TaskModel
 
 __all__ = ["project_to_model", "biased_configurations", "chain_edges"]
 
+IK_BLOCK = 4  # steps of a chain solved together from the block before's last solution
 
-def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.Tensor,
+
+def project_to_model(model: TaskModel, q: torch.Tensor, t, f_target: torch.Tensor,
                      landmarks: torch.Tensor, iters: int = 10, max_step: float = 0.2,
                      batch_collision_fn=None):
     """Configurations near ``q`` whose features are closest to ``f_target`` in step t's metric.
@@ -34,7 +36,8 @@ def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.
     """
     kin = model.kin
     d = kin.dof
-    W = model.sigma_inv[t].detach()  # (F, F)
+    W = model.sigma_inv[t].detach()  # (F, F), or (C, F, F) for per-row steps
+    W = W.expand(len(q), *W.shape[-2:])  # (C, F, F)
     K = model.K_virt_inv(landmarks).detach()  # (4, 4)
     A, b = K[:3, :3], K[:3, 3]
     eye = torch.eye(d, dtype=q.dtype, device=q.device)
@@ -44,7 +47,7 @@ def project_to_model(model: TaskModel, q: torch.Tensor, t: int, f_target: torch.
         J, T_world_ee = kin.jacobian(q, with_pose=True)  # (C, 6, d), (C, 4, 4)
         lever = T_world_ee[:, :3, :3] @ model.tool.detach()  # (C, 3) tool point offset, world
         x = (T_world_ee[:, :3, 3] + lever) @ A.T + b  # (C, 3) tool point in the virtual frame
-        r = (torch.cat([q, x], dim=1) - f_target) @ W.T  # (C, F)
+        r = (W @ (torch.cat([q, x], dim=1) - f_target)[..., None])[..., 0]  # (C, F)
         J_tool = J[:, :3] + torch.cross(J[:, 3:], lever[..., None].expand_as(J[:, 3:]), dim=1)
         Jr = W @ torch.cat([eye.expand(len(q), d, d), A @ J_tool], dim=1)  # (C, F, d)
         return r, Jr
@@ -129,32 +132,38 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
     T_world_virt = torch.linalg.inv(model.K_virt_inv(landmarks))  # (4, 4)
     p_world = f[..., d:] @ T_world_virt[:3, :3].T + T_world_virt[:3, 3]  # (C, T, 3)
     weights = torch.tensor([1, 1, 1, 0, 0, 0], dtype=model.dtype, device=model.device)
-    T_target = torch.eye(4, dtype=model.dtype, device=model.device).repeat(chains, 1, 1)
+    T_target = torch.eye(4, dtype=model.dtype, device=model.device).repeat(chains, T, 1, 1)  # (C, T, 4, 4)
+    T_target[..., :3, 3] = p_world
     if free_posture:  # the whole pose: the gripper turned as the sampled joints turn it
-        R_world_ee = kin.fk(f[..., :d].reshape(-1, d)).reshape(chains, T, 4, 4)[..., :3, :3]  # (C, T, 3, 3)
-        q_prev = kin.sample_uniform(chains, generator=generator).to(model.device)  # (C, d)
+        T_target[..., :3, :3] = kin.fk(f[..., :d].reshape(-1, d)).reshape(chains, T, 4, 4)[..., :3, :3]
+        solve = dict(p_ee_tool=model.tool, config=IKConfig(max_iters=60, min_iters=5, pos_tol=5e-3, rot_tol=0.05))
+        seed = kin.sample_uniform(chains, generator=generator).to(model.device)  # (C, d)
     else:
-        q_prev = None
+        solve = dict(p_ee_tool=model.tool, weights=weights, config=IKConfig(max_iters=40, min_iters=5, pos_tol=5e-3))
+        seed = q_rest[:, 0]
+    # the chain's steps in blocks, each block's steps solved together (IK, then the projection)
+    # from the last configuration of the block before (the first block from the seed):
+    # consecutive configurations stay in one IK branch as when every step starts from the one
+    # before, in a few batched calls
     out, ok, hit = [], [], []
-    for t in range(T):
-        T_target[:, :3, 3] = p_world[:, t]
-        if free_posture:
-            T_target[:, :3, :3] = R_world_ee[:, t]
-            res = solve_ik(kin, T_target, q_prev, p_ee_tool=model.tool,
-                           config=IKConfig(max_iters=60, min_iters=5, pos_tol=5e-3, rot_tol=0.05))
-        else:
-            seed = q_rest[:, t] if q_prev is None else q_prev
-            res = solve_ik(kin, T_target, seed, p_ee_tool=model.tool, weights=weights, q_rest=q_rest[:, t],
-                           config=IKConfig(max_iters=40 if q_prev is None else 20, min_iters=5, pos_tol=5e-3))
-        q, better = project_to_model(model, res.q, t, f[:, t], landmarks, iters=project_iters,
-                                     batch_collision_fn=batch_collision_fn)
-        q_prev = q
-        out.append(q)
-        ok.append(res.success | better)
-        hit.append(res.success)
-    Q = torch.stack(out, dim=1).reshape(chains * T, d).detach().cpu().numpy()  # (C*T, d), chain-major
-    valid = torch.stack(ok, dim=1).reshape(-1).cpu().numpy()
-    reached = torch.stack(hit, dim=1).reshape(-1).cpu().numpy()
+    starts = [0] + list(range(1, T, IK_BLOCK))
+    for k, t0 in enumerate(starts):
+        t1 = starts[k + 1] if k + 1 < len(starts) else T
+        b = t1 - t0
+        rest = {} if free_posture else {"q_rest": q_rest[:, t0:t1].reshape(-1, d)}
+        res = solve_ik(kin, T_target[:, t0:t1].reshape(-1, 4, 4), seed.repeat_interleave(b, dim=0),
+                       **solve, **rest)
+        steps = torch.arange(t0, t1, device=model.device).repeat(chains)  # (C*b,) each row's step
+        q, better = project_to_model(model, res.q, steps, f[:, t0:t1].reshape(-1, F), landmarks,
+                                     iters=project_iters, batch_collision_fn=batch_collision_fn)
+        out.append(q.reshape(chains, b, d))
+        ok.append((res.success | better).reshape(chains, b))
+        hit.append(res.success.reshape(chains, b))
+        seed = out[-1][:, -1]
+    q = torch.cat(out, dim=1).reshape(chains * T, d)
+    Q = q.detach().cpu().numpy()  # (C*T, d), chain-major
+    valid = torch.cat(ok, dim=1).reshape(-1).cpu().numpy()
+    reached = torch.cat(hit, dim=1).reshape(-1).cpu().numpy()
     return Q, valid, T, reached
 
 

@@ -167,60 +167,72 @@ def solve_ik_tensor(kin: KinematicModel, T_world_target: torch.Tensor, q_seed: t
     rot_on = (w[:, 3:] > 0).to(q.dtype)
     eye6 = torch.eye(6, dtype=q.dtype, device=q.device)
     eye_d = torch.eye(d, dtype=q.dtype, device=q.device)
-    active = torch.ones(B, dtype=torch.bool, device=q.device)
 
-    def errors(q):
-        J, T_world_ee = kin.jacobian(q, with_pose=True)  # (B, 6, d), (B, 4, 4)
+    def errors(q, rows):
+        """Errors ``(b, 6)`` and tool Jacobians ``(b, 6, d)`` of the batch rows ``rows`` at ``q (b, d)``."""
+        J, T_world_ee = kin.jacobian(q, with_pose=True)  # (b, 6, d), (b, 4, 4)
         R = T_world_ee[:, :3, :3]
         if p_ee_tool is not None:
-            r = (R @ p_ee_tool[..., None])[..., 0]  # (B, 3) lever arm in the world frame
+            r = (R @ p_ee_tool[rows, :, None])[..., 0]  # (b, 3) lever arm in the world frame
             p = T_world_ee[:, :3, 3] + r
             J = torch.cat([J[:, :3] - _skew(r) @ J[:, 3:], J[:, 3:]], dim=1)  # v_tool = v_ee + w x r
         else:
             p = T_world_ee[:, :3, 3]
-        e = torch.cat([p_target - p, rotation_error(R_target, R)], dim=-1)  # (B, 6)
+        e = torch.cat([p_target[rows] - p, rotation_error(R_target[rows], R)], dim=-1)  # (b, 6)
         return e, J
 
-    e, J = errors(q)
-    it = 0
-    for it in range(1, config.max_iters + 1):
-        pos_err = (e[:, :3] * pos_on).norm(dim=-1)
-        rot_err = (e[:, 3:] * rot_on).norm(dim=-1)
-        done = (pos_err <= config.pos_tol) & (rot_err <= config.rot_tol)
-        if it > config.min_iters:
-            active = active & ~done
-            if not bool(active.any()):
-                it -= 1
-                break
-        ew = e * w  # (B, 6)
-        Jw = J * w[..., None]  # (B, 6, d)
-        lam2 = config.damping ** 2 + config.error_damping * (ew * ew).sum(-1)  # (B,)
-        null_pull = config.nullspace_gain * (q_rest - q)  # (B, d)
+    def step(rows, q, e, J):
+        """One damped least-squares step of the rows ``rows``: ``q (b, d)`` -> ``(b, d)``."""
+        b = len(rows)
+        w_r = w[rows]
+        ew = e * w_r  # (b, 6)
+        Jw = J * w_r[..., None]  # (b, 6, d)
+        lam2 = config.damping ** 2 + config.error_damping * (ew * ew).sum(-1)  # (b,)
+        null_pull = config.nullspace_gain * (q_rest[rows] - q)  # (b, d)
         null_pull = torch.where(((q <= lower + 1e-9) & (null_pull < 0))
                                 | ((q >= upper - 1e-9) & (null_pull > 0)), 0.0, null_pull)
         free = torch.ones_like(q)
         for _ in range(2):  # second pass with saturated joints removed from the Jacobian
             Jf = Jw * free[:, None, :]
-            A = Jf @ Jf.transpose(1, 2) + lam2[:, None, None] * eye6  # (B, 6, 6)
-            Jpinv = Jf.transpose(1, 2) @ torch.linalg.inv(A)  # (B, d, 6)
+            A = Jf @ Jf.transpose(1, 2) + lam2[:, None, None] * eye6  # (b, 6, 6)
+            Jpinv = Jf.transpose(1, 2) @ torch.linalg.inv(A)  # (b, d, 6)
             # exact projector onto the null space of the rows that constrain (not the damped one,
             # whose leak would fight the task near singularities)
-            _, S, Vh = torch.linalg.svd(Jf, full_matrices=True)  # S: (B, 6), Vh: (B, d, d)
-            rank_on = (S > 1e-6 * S[:, :1].clamp_min(1e-12)).to(q.dtype)  # (B, 6)
-            rank_on = torch.cat([rank_on, rank_on.new_zeros(B, d - rank_on.shape[1])], dim=1)
+            _, S, Vh = torch.linalg.svd(Jf, full_matrices=True)  # S: (b, 6), Vh: (b, d, d)
+            rank_on = (S > 1e-6 * S[:, :1].clamp_min(1e-12)).to(q.dtype)  # (b, 6)
+            rank_on = torch.cat([rank_on, rank_on.new_zeros(b, d - rank_on.shape[1])], dim=1)
             V = Vh.transpose(1, 2)
-            N = eye_d - (V * rank_on[:, None, :]) @ Vh  # (B, d, d)
+            N = eye_d - (V * rank_on[:, None, :]) @ Vh  # (b, d, d)
             N = N * free[:, None, :] * free[:, :, None]
-            dq = (Jpinv @ ew[..., None])[..., 0] + (N @ null_pull[..., None])[..., 0]  # (B, d)
+            dq = (Jpinv @ ew[..., None])[..., 0] + (N @ null_pull[..., None])[..., 0]  # (b, d)
             pushing = ((q <= lower + 1e-9) & (dq < 0)) | ((q >= upper - 1e-9) & (dq > 0))
             if not bool((pushing & (free > 0)).any()):
                 break
             free = free * (~pushing).to(q.dtype)
         dq = dq * free
-        scale = (config.max_step / dq.abs().amax(dim=-1).clamp_min(1e-12)).clamp(max=1.0)  # (B,)
-        dq = dq * (scale * active.to(q.dtype))[:, None]
-        q = torch.minimum(torch.maximum(q + dq, lower), upper)
-        e, J = errors(q)
+        scale = (config.max_step / dq.abs().amax(dim=-1).clamp_min(1e-12)).clamp(max=1.0)  # (b,)
+        return torch.minimum(torch.maximum(q + dq * scale[:, None], lower), upper)
+
+    # rows that met the tolerances (after min_iters) stop; only the others are computed on
+    rows = torch.arange(B, device=q.device)
+    e, J = errors(q, rows)
+    e_all = e.clone()  # (B, 6) every row's latest error
+    it = 0
+    for it in range(1, config.max_iters + 1):
+        if it > config.min_iters:
+            pos_err = (e[:, :3] * pos_on[rows]).norm(dim=-1)
+            rot_err = (e[:, 3:] * rot_on[rows]).norm(dim=-1)
+            going = ~((pos_err <= config.pos_tol) & (rot_err <= config.rot_tol))
+            if not bool(going.any()):
+                it -= 1
+                break
+            if not bool(going.all()):
+                rows, e, J = rows[going], e[going], J[going]
+        q_rows = step(rows, q[rows], e, J)
+        q[rows] = q_rows
+        e, J = errors(q_rows, rows)
+        e_all[rows] = e
+    e = e_all
     pos_err = (e[:, :3] * pos_on).norm(dim=-1)
     rot_err = (e[:, 3:] * rot_on).norm(dim=-1)
     success = (pos_err <= config.pos_tol) & (rot_err <= config.rot_tol)

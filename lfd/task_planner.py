@@ -149,6 +149,28 @@ def can_bypass(log_trans: np.ndarray, offsets, blocked, t_start: int) -> bool:
     return bool(ok[-1])
 
 
+@dataclass
+class _Growth:
+    """Biased growth for one landmark place, run a round at a time (see ``TaskPlanner._new_growth``).
+
+    pos: ``(Z, 3)`` the landmark positions it is for; rounds: ``(samples, posture_spread,
+    free_posture)`` per round, the first two always run, the others only while some step has
+    fewer than ``min_free_per_step`` free vertices and the samples stay within ``budget``;
+    per_step: ``(T,)`` collision-free biased vertices per step so far; reached: ``(T,)`` steps
+    whose tool-point target some execution's IK reached."""
+
+    pos: np.ndarray
+    rounds: list
+    budget: int
+    per_step: np.ndarray
+    reached: np.ndarray
+    done: int = 0  # rounds taken (run or skipped)
+
+    @property
+    def finished(self) -> bool:
+        return self.done >= len(self.rounds)
+
+
 class TaskPlanner:
     """Plans a learned task around the caller's obstacles.
 
@@ -193,6 +215,7 @@ class TaskPlanner:
         # tool-point targets no sampled execution reached there (the arm cannot: 'unreachable')
         self._grown_for: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=64)  # bounded
         self._unreachable = np.zeros(0, dtype=int)
+        self._growth: _Growth | None = None  # a regrowth under way (rounds left)
         self.roadmap: Roadmap | None = None
         self.planner: ClosedLoopPlanner | None = None
         self._missing: str | None = None
@@ -262,15 +285,31 @@ class TaskPlanner:
             if np.all(np.isfinite(pos)):
                 self._sensed[name] = pos.copy()
 
-    def grow(self) -> bool:
+    def grow(self, rounds: int | None = None) -> bool:
         """Add biased vertices for the current landmarks if they moved far from every place the
         roadmap was grown for (``regrow_distance``), and update the reachability verdict.
-        Returns whether vertices were added."""
+
+        ``rounds``: how many sampling rounds to run now (None: all). A regrowth takes a few
+        rounds (``_new_growth``); with ``rounds=1`` each call runs one and ``growth_pending``
+        stays True until the last, so a caller can re-plan after each (anytime): the first round
+        alone gives the new place most of its vertices. Returns whether vertices were added."""
+        if rounds is not None and rounds < 1:
+            raise ValueError(f"rounds must be at least 1 or None, got {rounds}")
         self.growth_pending = False
         if self.roadmap is None or self._landmarks is None:
             return False
         before = self.roadmap.n
-        self._maybe_regrow()
+        pos = self._landmarks[:, :3, 3].cpu().numpy()
+        g = self._growth
+        if g is None or np.abs(pos - g.pos).max() > self.settings.regrow_distance:
+            self._growth = g = self._start_growth(pos)  # a growth for another place is dropped
+        if g is not None:
+            self._run_growth(g, rounds)
+            self._unreachable = self._verdict(g.reached)
+            if g.finished:
+                self._remember(g.pos, self._unreachable)
+                self._growth = None
+        self.growth_pending = self._growth is not None
         return self.roadmap.n > before
 
     def keypoints(self, Q) -> np.ndarray:
@@ -281,44 +320,80 @@ class TaskPlanner:
             tool = T_world_ee[:, :3, :3] @ self.model.tool.detach() + T_world_ee[:, :3, 3]
         return torch.cat([origins, tool[:, None]], dim=1).cpu().numpy()
 
-    def _add_biased(self, n: int, budget: int | None = None) -> np.ndarray:
-        """Add about ``n`` biased vertices (collision-free ones) and their chain edges: a share
-        ``posture_share`` of them from chains whose arm posture is moved by ``posture_spread``
-        (an obstacle may sit where the demonstrated elbow was), and extra rounds while some step
-        lacks free vertices, as long as the samples stay within ``budget`` (default ``2 n``):
-        free-posture chains (``biased_configurations(free_posture=True)``: the demonstrated tool
-        pose held by arm postures from anywhere) alternating with moved-posture ones. Every
-        round's projection is guarded by the collision check. Returns ``(T,) bool``: the steps
-        whose tool-point target some execution's IK reached."""
+    def _new_growth(self, pos: np.ndarray, n: int, budget: int | None = None) -> _Growth:
+        """A growth of about ``n`` biased vertices (collision-free ones) with their chain edges,
+        for landmarks at ``pos (Z, 3)``: a share ``posture_share`` of them from chains whose arm
+        posture is moved by ``posture_spread`` (an obstacle may sit where the demonstrated elbow
+        was), and extra rounds while some step lacks free vertices, as long as the samples stay
+        within ``budget`` (default ``2 n``): free-posture chains (``biased_configurations(
+        free_posture=True)``: the demonstrated tool pose held by arm postures from anywhere)
+        alternating with moved-posture ones. Every round's projection is guarded by the
+        collision check."""
         s = self.settings
         n_moved = int(round(s.posture_share * n))
         T = self.model.mu.shape[0]
-        per_step = np.zeros(T, dtype=int)  # collision-free biased vertices per time step
-        reached_steps = np.zeros(T, dtype=bool)
-        added = 0
         rounds = [(n - n_moved, 0.0, False), (n_moved, s.posture_spread, False)]
         rounds += [(n_moved, s.posture_spread, k % 2 == 0) for k in range(s.extra_posture_rounds)]
-        for i, (m, spread, free_posture) in enumerate(rounds):
-            drawn = sum(r[0] for r in rounds[:i])
-            if m <= 0 or (i >= 2 and (per_step.min() >= s.min_free_per_step
-                                      or drawn + m > (2 * n if budget is None else budget))):
-                continue  # extra rounds only while some step has too few free vertices
-            Q, valid, steps, reached = biased_configurations(self.model, self._landmarks, m, self._gen,
-                                                             posture_spread=spread,
-                                                             batch_collision_fn=self.roadmap.in_collision,
-                                                             free_posture=free_posture)
-            reached_steps |= reached.reshape(-1, steps).any(0)
-            free = valid.copy()
-            free[valid] = ~self.roadmap.in_collision(Q[valid])
-            ids = np.full(len(Q), -1)
-            ids[free] = self.roadmap.add_vertices(Q[free], check=False)
-            self.roadmap.add_edges(ids[chain_edges(free, steps)])
-            per_step += free.reshape(-1, steps).sum(0)
-            added += int(free.sum())
-            if i >= 2:
-                self.stats["extra_posture_rounds"] = self.stats.get("extra_posture_rounds", 0) + 1
-        self.stats["vertices_added"] += added
-        return reached_steps
+        return _Growth(pos=pos, rounds=rounds, budget=2 * n if budget is None else budget,
+                       per_step=np.zeros(T, dtype=int), reached=np.zeros(T, dtype=bool))
+
+    def _run_growth(self, g: _Growth, rounds: int | None = None) -> None:
+        """Run up to ``rounds`` (None: all) of ``g``'s rounds; the ones not needed are skipped."""
+        k = 0
+        while not g.finished and (rounds is None or k < rounds or not self._round_needed(g)):
+            if self._round_needed(g):
+                self._grow_round(g)
+                k += 1
+            else:
+                g.done += 1
+
+    def _round_needed(self, g: _Growth) -> bool:
+        """Whether ``g``'s next round runs: the first two always (unless empty), the extra ones
+        only while some step has too few free vertices and within the budget."""
+        i = g.done
+        m = g.rounds[i][0]
+        drawn = sum(r[0] for r in g.rounds[:i])
+        return m > 0 and (i < 2 or (g.per_step.min() < self.settings.min_free_per_step
+                                    and drawn + m <= g.budget))
+
+    def _grow_round(self, g: _Growth) -> None:
+        """Run ``g``'s next round: sample, add the free vertices and their chain edges."""
+        i = g.done
+        m, spread, free_posture = g.rounds[i]
+        g.done += 1
+        Q, valid, steps, reached = biased_configurations(self.model, self._landmarks, m, self._gen,
+                                                         posture_spread=spread,
+                                                         batch_collision_fn=self.roadmap.in_collision,
+                                                         free_posture=free_posture)
+        g.reached |= reached.reshape(-1, steps).any(0)
+        free = valid.copy()
+        free[valid] = ~self.roadmap.in_collision(Q[valid])
+        ids = np.full(len(Q), -1)
+        ids[free] = self.roadmap.add_vertices(Q[free], check=False)
+        self.roadmap.add_edges(ids[chain_edges(free, steps)])
+        g.per_step += free.reshape(-1, steps).sum(0)
+        self.stats["vertices_added"] += int(free.sum())
+        if i >= 2:
+            self.stats["extra_posture_rounds"] = self.stats.get("extra_posture_rounds", 0) + 1
+
+    def _start_growth(self, pos: np.ndarray) -> _Growth | None:
+        """The growth the landmarks at ``pos (Z, 3)`` need, or None when the roadmap was grown near
+        there already or is full (then the verdict is settled here)."""
+        s = self.settings
+        room = (s.max_vertices or 3 * self.n_vertices) - self.roadmap.n
+        dist = [np.abs(pos - g).max() for g, _ in self._grown_for]
+        nearest = int(np.argmin(dist))
+        if dist[nearest] <= s.regrow_distance:
+            self._unreachable = self._grown_for[nearest][1]
+            return None
+        if min(room, s.regrow_vertices) <= 0 or not s.bias_fraction:
+            # the roadmap is full: a few sampled executions, IK only, still give the verdict
+            _, _, steps, reached = biased_configurations(self.model, self._landmarks, 4 * self.model.mu.shape[0],
+                                                         self._gen, project_iters=0)
+            self._remember(pos, self._verdict(reached.reshape(-1, steps).any(0)))
+            return None
+        self.stats["regrows"] += 1
+        return self._new_growth(pos, min(room, s.regrow_vertices), budget=room)
 
     def _build(self) -> None:
         s = self.settings
@@ -327,8 +402,13 @@ class TaskPlanner:
                                      self.segment_fn, batch_collision_fn=self.batch_collision_fn,
                                      settings=s.roadmap)
         self.stats["vertices_added"] = self.roadmap.n
-        verdict = self._verdict(self._add_biased(n_bias)) if n_bias else np.zeros(0, dtype=int)
-        self._remember(self._landmarks[:, :3, 3].cpu().numpy(), verdict)
+        pos = self._landmarks[:, :3, 3].cpu().numpy()
+        verdict = np.zeros(0, dtype=int)
+        if n_bias:
+            g = self._new_growth(pos, n_bias)
+            self._run_growth(g)
+            verdict = self._verdict(g.reached)
+        self._remember(pos, verdict)
         self.planner = ClosedLoopPlanner(
             self.roadmap, ModelStepCost(self.model), self.model.trans_cost.detach().cpu().numpy(),
             dt=float(self.model.task.dt) if self.model.task else 0.1,
@@ -342,24 +422,6 @@ class TaskPlanner:
         the end, at the source container) the target relative to a far bowl is loose and may be
         out of reach while the task is not (seen in the soak: a bowl in the square's far corner)."""
         return np.flatnonzero(~reached & self._task_steps)
-
-    def _maybe_regrow(self) -> None:
-        s = self.settings
-        pos = self._landmarks[:, :3, 3].cpu().numpy()
-        room = (s.max_vertices or 3 * self.n_vertices) - self.roadmap.n
-        dist = [np.abs(pos - g).max() for g, _ in self._grown_for]
-        nearest = int(np.argmin(dist))
-        if dist[nearest] <= s.regrow_distance:
-            self._unreachable = self._grown_for[nearest][1]
-            return
-        if min(room, s.regrow_vertices) <= 0 or not s.bias_fraction:
-            # the roadmap is full: a few sampled executions, IK only, still give the verdict
-            _, _, steps, reached = biased_configurations(self.model, self._landmarks, 4 * self.model.mu.shape[0],
-                                                         self._gen, project_iters=0)
-            self._remember(pos, self._verdict(reached.reshape(-1, steps).any(0)))
-            return
-        self._remember(pos, self._verdict(self._add_biased(min(room, s.regrow_vertices), budget=room)))
-        self.stats["regrows"] += 1
 
     def _remember(self, pos: np.ndarray, unreachable: np.ndarray) -> None:
         """The current verdict, kept for the landmark place ``pos (Z, 3)`` (the last 64 places)."""

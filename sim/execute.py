@@ -20,9 +20,9 @@ landmark update's time, already spent, plus the last search's; with a fixed late
 figure); it takes over when the robot gets there, or, if it arrives later than forecast, after
 the robot retraces the waypoints it passed since (a motion it has just made). While a plan is on
 its way no new one is asked for. After a far move the landmark update answers on the current
-roadmap and the biased regrowth (``TaskPlanner.grow``, seconds) runs as a second re-plan at the
-next reading, charged the same way: the robot executes the first answer while the roadmap grows
-(anytime). Every re-plan is recorded: ``replan_kind`` ("move" or "growth"), ``replan_update_ms``
+roadmap and the biased regrowth (``TaskPlanner.grow``) runs a round at a time, each round (a
+fraction of a second to a second) followed by a re-plan at the next reading, charged the same way:
+the robot executes the first answer while the roadmap grows (anytime). Every re-plan is recorded: ``replan_kind`` ("move" or "growth"), ``replan_update_ms``
 (landmark update or growth), ``replan_ms`` (the search, ``PlanResult.latency_s``, what the paper
 reports), ``charged_ms`` (the simulated time it cost), and ``retraced`` waypoints. ``build_ms``
 is the first update (the roadmap's construction), before the first plan's ``initial_ms``; the
@@ -351,7 +351,7 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         tic = time.perf_counter()
         if kind == "move":
             planner.update_landmarks(names, poses, grow=frozen)
-        elif not planner.grow():
+        elif not planner.grow(rounds=1):
             return  # the landmarks stayed near a place the roadmap was grown for
         update_s = time.perf_counter() - tic
         pos = follow.predict(forecast(kind, update_s))

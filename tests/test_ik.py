@@ -80,3 +80,25 @@ def test_rejects_bad_shapes(kin):
         solve_ik(kin, torch.eye(4), torch.zeros(6))
     with pytest.raises(ValueError, match="weights"):
         solve_ik(kin, torch.eye(4), torch.zeros(7), weights=[1, 1, 1])
+
+
+def test_a_batch_solves_each_row_as_alone(kin):
+    """Rows that converge stop being computed (the batch shrinks to the rest): each row's result,
+    error and success equal those of the row solved alone, converged rows and stragglers alike."""
+    q_true, g = _inner_configs(kin, 12, seed=5)
+    p_ee_tool = torch.tensor([0.0, 0.0, 0.1], dtype=torch.float64)
+    T = kin.fk(q_true).clone()
+    T[:, :3, 3] = tool_point_positions(kin, q_true, p_ee_tool)
+    T[-3:, 0, 3] += 1.5  # out of reach: these run all the iterations
+    spread = torch.linspace(0.02, 0.8, 12, dtype=torch.float64)[:, None]  # near seeds converge first
+    seed = q_true + spread * torch.randn(q_true.shape, generator=g, dtype=torch.float64)
+    cfg = IKConfig(max_iters=30, min_iters=3, pos_tol=1e-3, rot_tol=1e-2)
+    batch = solve_ik(kin, T, seed, p_ee_tool=p_ee_tool, config=cfg)
+    alone = [solve_ik(kin, T[i], seed[i], p_ee_tool=p_ee_tool, config=cfg) for i in range(12)]
+    iters = [r.iters for r in alone]
+    assert min(iters) < max(iters) == batch.iters  # rows stopped at different iterations
+    assert not bool(batch.success.all()) and bool(batch.success.any())
+    for i, r in enumerate(alone):
+        torch.testing.assert_close(batch.q[i], r.q[0], rtol=0, atol=1e-10)
+        assert bool(batch.success[i]) == bool(r.success[0])
+        assert abs(float(batch.pos_err[i] - r.pos_err[0])) < 1e-10

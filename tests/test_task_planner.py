@@ -333,3 +333,59 @@ def test_one_unreachable_step_that_the_task_can_skip_still_plans(kin):
         assert res.status == status, res.message
         if res.ok:
             assert 2 not in set(res.time_steps.tolist())
+
+
+def test_projection_with_a_step_per_row_equals_one_step_at_a_time(kin):
+    """``project_to_model`` with each row's own step (the batched chains) gives what each step's
+    rows give when projected alone with that step's metric."""
+    from lfd.task_planner import project_to_model
+    model = _model(kin)
+    T = model.mu.shape[0]
+    model.sigma_inv = model.sigma_inv * torch.linspace(0.5, 2.0, T, dtype=torch.float64)[:, None, None]
+    landmarks = torch.eye(4, dtype=torch.float64)[None].clone()
+    landmarks[0, :3, 3] = torch.tensor([0.7, 0.3, -0.1], dtype=torch.float64)
+    g = torch.Generator().manual_seed(7)
+    steps = torch.arange(T).repeat(3)  # (3T,)
+    q0 = model.mu[steps, :7] + 0.2 * torch.randn(3 * T, 7, generator=g, dtype=torch.float64)
+    f = model.mu[steps] + 0.05 * torch.randn(3 * T, 10, generator=g, dtype=torch.float64)
+    q, better = project_to_model(model, q0, steps, f, landmarks, iters=8)
+    assert bool(better.all()) and float((q - q0).abs().max()) > 0.01
+    for t in range(T):
+        rows = steps == t
+        q_t, better_t = project_to_model(model, q0[rows], t, f[rows], landmarks, iters=8)
+        torch.testing.assert_close(q[rows], q_t, rtol=0, atol=1e-12)
+        assert torch.equal(better[rows], better_t)
+
+
+def test_growth_a_round_at_a_time_equals_growth_at_once(kin):
+    """After a far landmark move, ``grow(rounds=1)`` adds the first round's vertices and leaves
+    ``growth_pending`` set until the last round; the finished roadmap equals the one that
+    ``grow()`` makes in one call (the same draws), and the place is then remembered."""
+    model = _tight_model(kin)
+    near, far = np.eye(4)[None].copy(), np.eye(4)[None].copy()
+    near[0, :3, 3] = [0.7, 0.4, -0.1]
+    far[0, :3, 3] = [0.6, 0.0, 0.1]
+    settings = TaskPlannerSettings(n_vertices=150, seed=0, regrow_vertices=72, min_free_per_step=10**6,
+                                   extra_posture_rounds=2)  # every extra round runs
+    roadmaps = []
+    for chunked in (False, True):
+        planner = TaskPlanner(model, lambda q: False, lambda a, b: False, settings=settings)
+        planner.update_landmarks(["bowl"], near)
+        n0 = planner.roadmap.n
+        planner.update_landmarks(["bowl"], far, grow=False)
+        assert planner.growth_pending and planner.roadmap.n == n0
+        if chunked:
+            sizes = []
+            while planner.growth_pending:
+                assert planner.grow(rounds=1)
+                sizes.append(planner.roadmap.n)
+            assert len(sizes) == 4 and sizes == sorted(set(sizes))  # 2 rounds + 2 extra, each adds
+        else:
+            assert planner.grow() and not planner.growth_pending
+        assert not planner.grow(rounds=1) and not planner.growth_pending  # grown for this place
+        roadmaps.append(planner.roadmap)
+        assert planner.plan(model.mu[0, :7].numpy(), 0).ok
+    assert roadmaps[0].n == roadmaps[1].n > n0
+    np.testing.assert_array_equal(roadmaps[0].vertices, roadmaps[1].vertices)
+    with pytest.raises(ValueError, match="rounds"):
+        planner.grow(rounds=0)
