@@ -31,7 +31,9 @@ whose motion passes within ``object_radius`` of its old or new place are checked
 path uses them. The regrowth after a far move (IK and projection of new biased vertices, seconds)
 is kept off the critical path when the caller asks: ``update_landmarks(..., grow=False)`` answers
 on the current roadmap, and ``grow()`` adds the vertices afterwards, after which a new plan
-improves on the first (an anytime re-plan; ``sim.execute`` does this while the robot moves).
+improves on the first (an anytime re-plan). ``grow(rounds=1)`` adds them a sampling round at a
+time (``growth_pending`` stays set until the last), so that a better plan can follow each round;
+``sim.execute`` does this while the robot moves.
 """
 
 from __future__ import annotations

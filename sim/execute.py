@@ -123,6 +123,7 @@ class RunResult:
     latency_mode: str = "none"  # ExecSettings.latency of the run
     charged_ms: list = field(default_factory=list)  # simulated time each re-plan took
     replan_kind: list = field(default_factory=list)  # each re-plan's cause: "move" or "growth" (anytime)
+    replan_steps: list = field(default_factory=list)  # each re-plan's [task step asked at, step it starts from]
     switches: int = 0  # re-plans that arrived and took over
     retraced: int = 0  # waypoints retraced because a plan arrived after the robot passed its start
     tracking_max_mm: float = 0.0  # largest distance of an arm frame or the tool point from where commanded
@@ -360,6 +361,7 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         search_s[kind] = res.latency_s
         result.n_replans += 1
         result.replan_kind.append(kind)
+        result.replan_steps.append([int(follow.step_at(follow.position)), int(follow.step_at(pos))])
         result.replan_update_ms.append(update_s * 1e3)
         result.replan_ms.append(res.latency_s * 1e3)
         result.plan_statuses.append(res.status)
