@@ -8,11 +8,13 @@ PYTEST_ARGS ?=
 
 .PHONY: demo test test-all bench clean-venv
 
-$(STAMP): setup.py
+$(STAMP): setup.py constraints.txt lfd/__init__.py
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	# torch first, pinned: a CPU build on this machine; nothing may pull a CUDA build afterwards.
-	$(PY) -m pip install --disable-pip-version-check -q torch==2.13.0
-	$(PY) -m pip install --disable-pip-version-check -q -e ".[sim,test]"
+	$(PY) -m pip install --disable-pip-version-check -q -c constraints.txt torch==2.13.0
+	# the distribution was called lfd before it became lfd-landmarks (the name lfd on PyPI is another project's)
+	$(PY) -m pip uninstall --disable-pip-version-check -q -y lfd 2>/dev/null || true
+	$(PY) -m pip install --disable-pip-version-check -q -c constraints.txt -e ".[sim,test]"
 	touch $(STAMP)
 
 demo: $(STAMP)

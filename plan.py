@@ -1,128 +1,19 @@
-"""Plan a learned task in a new scene, or evaluate every model variant on seeded scenarios.
+"""``python plan.py ...``: the ``lfd-plan`` command (``sim.plan_cli``) run from a source checkout.
 
-    python plan.py --model runs/powder [--scenario-seed S] [--roadmap-size N] [--latency L] [--gui]
-                   [--out DIR] [--plot]
-    python plan.py --evaluate --task powder|pour [--scenarios N] [--seed S] [--workers K] [--latency L]
-                   [--out DIR] [--video]
+Plans a learned task in a simulated scene, or evaluates every model variant (``--evaluate``);
+``python plan.py --help`` lists every option.
 """
 
 from __future__ import annotations
 
-import json
-import sys
-from pathlib import Path
+import functools
 
-from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
-from sim.scenarios import MAX_BASE_SEED, MAX_SCENARIO_SEED
+from lfd.cli import run_main
+from sim import plan_cli
 
-
-def parse(argv=None):
-    ap = ArgumentParser(prog="plan.py", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--model", type=Path, help="model folder written by train.py (single-plan mode)")
-    ap.add_argument("--scenario-seed", type=int, default=0, help="which scenario to plan in")
-    ap.add_argument("--roadmap-size", type=int, default=None,
-                    help="PRM* vertices (default: 1000 per 24 time steps of the model)")
-    ap.add_argument("--latency", default="measured", metavar="measured|none|SECONDS",
-                    help="simulated time each plan costs while the robot moves on: its wall-clock time "
-                         "(default), none (the world waits: deterministic), or a fixed number of seconds")
-    ap.add_argument("--gui", action="store_true", help="watch in the PyBullet GUI")
-    ap.add_argument("--execute", action="store_true", help="also execute the plan closed-loop")
-    ap.add_argument("--plot", action="store_true", help="plot the plan against the learned means")
-    ap.add_argument("--evaluate", action="store_true", help="run the paper's comparison tables")
-    ap.add_argument("--task", choices=("powder", "pour"), help="task to evaluate")
-    ap.add_argument("--scenarios", type=int, default=50, help="scenarios per variant (default 50)")
-    ap.add_argument("--seed", type=int, default=0, help="base seed of the scenario set")
-    ap.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
-    ap.add_argument("--variants", nargs="+", default=None, help="subset of variants to run")
-    ap.add_argument("--models", type=Path, default=None, help="folder of trained variants (default runs/<task>/models)")
-    ap.add_argument("--demos", type=Path, default=None, help="demonstrations to train missing variants on")
-    ap.add_argument("--video", action="store_true", help="write a GIF of the first scenario of each variant")
-    ap.add_argument("--out", type=Path, default=None, help="output folder")
-    args = ap.parse_args(argv)
-    from sim.execute import parse_latency
-    try:
-        args.latency = str(parse_latency(args.latency))
-    except ValueError as e:
-        raise UsageError(f"--latency: {e}") from None
-    if args.roadmap_size is not None and args.roadmap_size < 10:
-        raise UsageError(f"--roadmap-size must be at least 10, got {args.roadmap_size}")
-    for opt, seed, top in (("--scenario-seed", args.scenario_seed, MAX_SCENARIO_SEED),
-                           ("--seed", args.seed, MAX_BASE_SEED)):
-        if not 0 <= seed < top:
-            raise UsageError(f"{opt} must be in [0, {top}), got {seed}")
-    if args.demos is not None and not args.demos.exists():
-        raise UsageError(f"--demos {args.demos}: no such folder")
-    if args.models is not None and args.models.exists() and not args.models.is_dir():
-        raise UsageError(f"--models {args.models}: exists and is not a folder")
-    if args.evaluate:
-        if args.task is None:
-            raise UsageError("--evaluate needs --task powder|pour")
-        if args.scenarios < 1 or args.workers < 1:
-            raise UsageError(f"--scenarios and --workers must be at least 1, got {args.scenarios}, {args.workers}")
-    elif args.model is None:
-        raise UsageError("give --model DIR to plan once, or --evaluate --task TASK")
-    return args
-
-
-def main(argv=None) -> int:
-    args = parse(argv)
-    if args.evaluate:
-        from sim.evaluate import VARIANTS, EvalSettings, TrainingFailed, evaluate, format_table, model_dir_for
-        from sim.model_check import check_models_for_task
-        models = args.models or Path("runs") / args.task / "models"
-        variants = tuple(args.variants) if args.variants else tuple(v.name for v in VARIANTS)
-        unknown = [v for v in variants if v not in {x.name for x in VARIANTS}]
-        if unknown:
-            raise UsageError(f"--variants: unknown {unknown}; choose from {[v.name for v in VARIANTS]}")
-        check_models_for_task([model_dir_for(models, v) for v in VARIANTS if v.name in variants], args.task)
-        out = writable_dir(args.out or Path("runs") / args.task / "eval")
-        try:
-            from tqdm import tqdm as progress
-        except ImportError:
-            progress = None
-        settings = EvalSettings(task=args.task, n_scenarios=args.scenarios, seed=args.seed,
-                                roadmap_size=args.roadmap_size, workers=args.workers, video=args.video,
-                                variants=variants, latency=args.latency)
-        try:
-            payload = evaluate(settings, out, models, args.demos, progress)
-        except TrainingFailed as e:  # train.py printed its reason; no traceback of ours on top
-            print(f"plan.py: error: {e}", file=sys.stderr)
-            return 2 if e.returncode == 2 else 1
-        print(format_table(payload["variants"], args.task, settings.latency))
-        print(f"results: {out / 'results.json'}")
-        return 0
-
-    from sim.evaluate import plan_scenario
-    from sim.model_check import load_checked_model
-    from sim.scenarios import draw_scenario
-    _, task_name = load_checked_model(args.model)  # landmarks, robot, task: before any simulation
-    out = writable_dir(args.out or args.model / "plans")
-    scenario = draw_scenario(task_name, args.scenario_seed)
-    report, res, model = plan_scenario(args.model, scenario, args.roadmap_size, gui=args.gui,
-                                       execute=args.execute, latency=args.latency)
-    print(f"plan: {report['status']}  cost {report['cost']:.1f}  waypoints {report['waypoints']}  "
-          f"latency {report['latency_ms']:.0f} ms  ({report['edges_evaluated']} edge costs evaluated, "
-          f"roadmap of {report['roadmap_vertices']} vertices built in {report['roadmap_build_s']:.1f} s)")
-    if "execution" in report:
-        ex = report["execution"]
-        print(f"execution: {'success' if ex['success'] else 'failure'} ({ex['reason']}); "
-              f"{ex['fraction_in_bowl']:.0%} in the bowl, {ex['n_replans']} replans")
-    import numpy as np
-    stem = out / f"plan_scenario{args.scenario_seed}"
-    np.savez(stem.with_suffix(".npz"), configurations=res.configurations, time_steps=res.time_steps,
-             dt=model.task.dt if model.task else 0.1, cost=res.cost)
-    stem.with_suffix(".json").write_text(json.dumps(report, indent=2, default=float) + "\n")
-    print(f"saved {stem.with_suffix('.npz')} and {stem.with_suffix('.json')}")
-    if args.plot and res.ok:
-        from lfd.plots import plot_plan_features
-        from sim.world import World
-        with World(task_name, scenario=scenario.placements) as w:
-            names, poses = w.sensed_landmarks()
-        png = plot_plan_features(model, res.configurations, res.time_steps,
-                                 model.select_landmarks(names, poses), stem.with_suffix(".png"))
-        print(f"plot: {png}")
-    return 0 if res.ok else 1
-
+PROG = "plan.py"
+main = functools.partial(plan_cli.main, prog=PROG)  # main(argv) -> exit status, as lfd-plan's
+parse = functools.partial(plan_cli.parse, prog=PROG)
 
 if __name__ == "__main__":
-    run_main(main, prog="plan.py")
+    run_main(main, prog=PROG)

@@ -1,8 +1,38 @@
+"""Packaging of lfd (distribution name ``lfd-landmarks``; the import names are ``lfd`` and ``sim``).
+
+``pip install .`` installs the library and what its Python example needs (torch,
+pytorch-kinematics, numpy, scipy, networkx, and example-robot-data for the Baxter URDF);
+``pip install ".[sim]"`` adds the simulator (PyBullet), TensorBoard, plots and videos. The
+Makefile installs with ``-c constraints.txt``, the versions this project was last tested with.
+"""
+
+import re
+from pathlib import Path
+
 from setuptools import find_packages, setup
 
+HERE = Path(__file__).resolve().parent
+
+
+def read_version() -> str:
+    """``lfd.__version__``, parsed from ``lfd/__init__.py`` (importing lfd would need torch)."""
+    text = (HERE / "lfd" / "__init__.py").read_text(encoding="utf-8")
+    match = re.search(r'^__version__\s*=\s*["\']([^"\']+)["\']', text, flags=re.M)
+    if match is None:
+        raise RuntimeError("lfd/__init__.py has no __version__ = '...' line")
+    return match.group(1)
+
+
+# The commands, each a function of the packages (train.py and plan.py at the repository's root are
+# thin wrappers of the same functions). lfd-plan needs the simulator: install the [sim] extra.
+CONSOLE_SCRIPTS = [
+    "lfd-train = lfd.train_cli:cli",
+    "lfd-plan = sim.plan_cli:cli",
+]
+
 setup(
-    name="lfd",
-    version="0.1.0",
+    name="lfd-landmarks",
+    version=read_version(),
     description="Learning manipulation tasks from demonstrations with learned virtual landmarks "
                 "(Bowen & Alterovitz), with a PyBullet executor",
     packages=find_packages(include=["lfd", "lfd.*", "sim", "sim.*"]),
@@ -14,11 +44,12 @@ setup(
         "numpy>=1.24",
         "scipy>=1.10",
         "networkx>=3.0",
+        "example-robot-data>=4.0",  # the Baxter URDF and meshes (lfd.robots.BAXTER_LEFT)
     ],
     extras_require={
-        # The simulator, TensorBoard, plots and the test tools: what `make` installs.
-        "sim": ["pybullet>=3.2.5", "example-robot-data>=4.0", "tensorboard>=2.12", "matplotlib>=3.6",
-                "imageio>=2.30", "tqdm>=4.60"],
+        # The simulator, TensorBoard, plots and videos: what `make` installs.
+        "sim": ["pybullet>=3.2.5", "tensorboard>=2.12", "matplotlib>=3.6", "imageio>=2.30", "tqdm>=4.60"],
         "test": ["pytest>=7", "hypothesis>=6", "psutil>=5"],
     },
+    entry_points={"console_scripts": CONSOLE_SCRIPTS},
 )

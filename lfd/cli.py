@@ -18,7 +18,8 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["UsageError", "ArgumentParser", "run_main", "writable_dir", "USER_ERRORS", "EXIT_BROKEN_PIPE"]
+__all__ = ["UsageError", "ArgumentParser", "DefaultsHelpFormatter", "run_main", "writable_dir", "error_line",
+           "USER_ERRORS", "EXIT_BROKEN_PIPE"]
 
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE: what a shell reports for a tool killed by a closed pipe
 
@@ -43,14 +44,33 @@ def _user_errors() -> tuple[type[BaseException], ...]:
 USER_ERRORS = _user_errors
 
 
+class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """``--help`` shows every option's default: ``(default: X)`` is added to a help text that does
+    not already say its default in words (``default: ./runs/<task>``), ``(default: off)`` to a
+    flag; required options and options without a default get nothing added."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if "%(default)" in text or "default" in text.lower() or action.default is argparse.SUPPRESS \
+                or action.required or not action.option_strings:
+            return text
+        if isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction)):
+            return f"{text} (default: {'on' if action.default else 'off'})"
+        if action.default is None:
+            return text
+        return f"{text} (default: %(default)s)"
+
+
 class ArgumentParser(argparse.ArgumentParser):
     """An ``argparse`` parser whose errors are one line (no usage dump) and exit status 2.
 
     Options are taken only as spelled in ``--help`` (``allow_abbrev=False``): an abbreviation
-    (``--scen``) would silently change meaning, or stop working, when an option is added."""
+    (``--scen``) would silently change meaning, or stop working, when an option is added.
+    ``--help`` shows each option's default (``DefaultsHelpFormatter``)."""
 
     def __init__(self, *args, **kwargs):
         kwargs.setdefault("allow_abbrev", False)
+        kwargs.setdefault("formatter_class", DefaultsHelpFormatter)
         super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # noqa: D401 - argparse's hook
@@ -71,6 +91,14 @@ def writable_dir(path: str | Path, what: str = "--out") -> Path:
     return path
 
 
+def error_line(e: BaseException) -> str:
+    """A user error as the one line ``run_main`` prints after ``"<prog>: error: "``."""
+    msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+    if isinstance(e, OSError) and e.filename and str(e.filename) not in msg:
+        msg = f"{e.filename}: {msg}"
+    return msg
+
+
 def run_main(main, argv=None, prog: str | None = None) -> None:
     """Run ``main(argv) -> int | None`` and exit; user errors become one line and status 2.
 
@@ -86,10 +114,7 @@ def run_main(main, argv=None, prog: str | None = None) -> None:
             print(f"{prog}: interrupted", file=sys.stderr)
             code = 130
         except USER_ERRORS() as e:
-            msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-            if isinstance(e, OSError) and e.filename and str(e.filename) not in msg:
-                msg = f"{e.filename}: {msg}"
-            print(f"{prog}: error: {msg}", file=sys.stderr)
+            print(f"{prog}: error: {error_line(e)}", file=sys.stderr)
             code = 2
         sys.stdout.flush()  # a closed pipe shows here, not as "Exception ignored" at shutdown
     except BrokenPipeError:

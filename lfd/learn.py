@@ -136,10 +136,15 @@ class FitConfig:
 
     def __post_init__(self):
         for name, allowed in (("tool", TOOL_MODES), ("env", ENV_MODES), ("covariance", COVARIANCES),
-                              ("m_step", M_STEPS), ("init", INITS), ("dtype", tuple(DTYPES)), ("device", ("cpu", "cuda"))):
+                              ("m_step", M_STEPS), ("init", INITS), ("dtype", tuple(DTYPES))):
             value = getattr(self, name)
-            if value not in allowed and not (name == "device" and str(value).startswith("cuda:")):
+            if value not in allowed:
                 raise ValueError(f"FitConfig.{name} must be one of {', '.join(allowed)}; got {value!r}")
+        try:  # any torch device string: cpu, cuda, cuda:1, mps, ...
+            torch.device(self.device)
+        except (RuntimeError, ValueError, TypeError) as e:
+            raise ValueError(f"FitConfig.device must be a torch device string (cpu, cuda, cuda:1, mps, ...); "
+                             f"got {self.device!r}") from e
         if int(self.time_steps) < 2:
             raise ValueError(f"FitConfig.time_steps must be at least 2, got {self.time_steps}")
         if not self.tool_search >= 0 or int(self.tool_grid) < 1:

@@ -37,5 +37,9 @@ def quiet_stdio():
             os.close(copy)
 
 
-with quiet_stdio():
-    import pybullet  # noqa: F401  (imported once, quietly; later imports are cached)
+try:
+    with quiet_stdio():
+        import pybullet  # noqa: F401  (imported once, quietly; later imports are cached)
+except ImportError as e:  # the plain install: the library (lfd) works, the simulator needs its extra
+    raise ImportError(f"the simulator (sim, lfd-plan) needs PyBullet, which is not installed ({e}); "
+                      f"install the package with its sim extra: pip install \"lfd-landmarks[sim]\"") from e

@@ -2,8 +2,9 @@
 
 Variants (the paper's rows): learned tool + learned environment landmark; learned tool + manual
 (bowl); manual (hand-picked tip) + manual; arbitrary (gripper origin) + manual; and the learned
-model followed with obstacles ignored. Each is trained once by ``train.py`` (missing ones are
-trained on demand) into ``<models>/<tool>-<env>/``. Scenarios run in parallel worker processes,
+model followed with obstacles ignored. Each is trained once by ``lfd.train_cli.main`` (the
+``lfd-train`` / ``train.py`` command, called in this process; missing ones are trained on
+demand) into ``<models>/<tool>-<env>/``. Scenarios run in parallel worker processes,
 each with its own PyBullet client; finished runs are appended to ``runs.jsonl`` at once, so an
 interrupted evaluation resumes where it stopped. Each run's task-point path (the model's tool
 point in the world frame as executed) is saved beside it, in
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
+import shlex
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -24,20 +25,22 @@ from pathlib import Path
 
 import numpy as np
 
+from lfd.cli import USER_ERRORS, error_line
+from lfd.train_cli import main as train_main
 from sim.execute import parse_latency
 from sim.scenarios import Scenario, draw_scenarios
 
 __all__ = ["Variant", "VARIANTS", "EvalSettings", "TrainingFailed", "run_one", "evaluate", "format_table"]
 
-ROOT = Path(__file__).resolve().parent.parent
 # how the executor times a plan (``sim.execute.ExecSettings.pace``), logged with every run: runs
 # logged without it were paced per visited step (before ``lfd.timing.step_clock``) and are redone
 EXEC_PACE = "demonstrated"
 
 
 class TrainingFailed(RuntimeError):
-    """``train.py`` could not make a variant's model (its own message is on stderr);
-    ``returncode`` is train.py's exit status (2: bad input, such as broken demonstrations)."""
+    """The training command could not make a variant's model (the message gives its reason);
+    ``returncode`` is its exit status (2: bad input, such as broken demonstrations; 130 / 143:
+    interrupted)."""
 
     def __init__(self, message: str, returncode: int):
         super().__init__(message)
@@ -47,8 +50,8 @@ class TrainingFailed(RuntimeError):
 @dataclass(frozen=True)
 class Variant:
     name: str
-    tool: str           # learn | tip | gripper
-    env: str            # learn | bowl
+    tool: str           # FitConfig.tool: learn | tip | gripper (train.py --tool learned | manual | arbitrary)
+    env: str            # FitConfig.env: learn | bowl (train.py --env learned | manual)
     obstacles: bool = True
     label_tool: str = ""
     label_env: str = ""
@@ -103,28 +106,37 @@ def model_dir_for(models: Path, v: Variant) -> Path:
 
 
 def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_seed: int = 0) -> Path:
-    """Train the variant's model with ``train.py`` unless it exists.
+    """Train the variant's model with ``lfd.train_cli.main`` (in this process) unless it exists;
+    ``TrainingFailed`` when it cannot.
 
-    ``train_seed`` seeds the learner (and the demonstrations, when ``demos`` is None and
-    ``train.py`` has to make them). It is not the scenario set's base seed: a model is trained
-    once and evaluated on any scenario set, so that tables of different base seeds compare the
-    same models."""
+    ``train_seed`` seeds the learner (and the demonstrations, when ``demos`` is None and the
+    training has to make them in ``./runs/demos/<task>``). It is not the scenario set's base
+    seed: a model is trained once and evaluated on any scenario set, so that tables of different
+    base seeds compare the same models."""
     out = model_dir_for(models, v)
     if (out / "model.pt").is_file() and (out / "config.json").is_file():
         return out
-    # absolute paths: train.py runs in the repository, the caller may not
-    cmd = [sys.executable, str(ROOT / "train.py"), "--task", task, "--tool", v.tool, "--env", v.env,
-           "--out", str(out.resolve()), "--seed", str(train_seed)]
+    argv = ["--task", task, "--tool", v.tool, "--env", v.env, "--out", str(out), "--seed", str(train_seed)]
     if demos is not None:
-        cmd += ["--demos", str(Path(demos).resolve())]
-    print(f"[evaluate] training {v.model_key}: {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
+        argv += ["--demos", str(demos)]
+    print(f"[evaluate] training {v.model_key}: lfd-train {shlex.join(argv)}", file=sys.stderr, flush=True)
+    what = f"training the {v.name} model ({v.model_key})"
     try:
-        subprocess.run(cmd, check=True, cwd=ROOT)
-    except subprocess.CalledProcessError as e:
-        why = (f"was killed by signal {-e.returncode}" if e.returncode < 0 else  # e.g. out of memory
-               f"failed with exit status {e.returncode}; see train.py's message above")
-        raise TrainingFailed(f"training the {v.name} model ({v.model_key}) {why}", e.returncode) from e
+        code = train_main(argv)
+    except USER_ERRORS() as e:  # bad demonstrations, every restart failing, ...: its reason, one line
+        raise TrainingFailed(f"{what} failed with exit status 2: {error_line(e)}", 2) from e
+    if code:
+        raise TrainingFailed(f"{what} stopped with exit status {code}", code)
     return out
+
+
+def _init_worker() -> None:
+    """First thing in each forked evaluation worker: one torch thread. This process may have run
+    torch's thread pool (a model trained in-process by ``ensure_model``, demonstrations made by
+    ``sim.demo_job``), and a forked child that starts a parallel region of that pool's OpenMP
+    waits forever for threads it does not have."""
+    import torch
+    torch.set_num_threads(1)
 
 
 def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roadmap_size: int | None,
@@ -318,7 +330,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
             for job in jobs:
                 record(run_one(*job))
         else:
-            with ProcessPoolExecutor(max_workers=settings.workers) as pool:
+            with ProcessPoolExecutor(max_workers=settings.workers, initializer=_init_worker) as pool:
                 futures = [pool.submit(run_one, *job) for job in jobs]
                 for f in as_completed(futures):
                     record(f.result())

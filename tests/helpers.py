@@ -67,3 +67,41 @@ def synthetic_demo_dir(folder: Path, n_demos: int, time_steps: int, Z: int, samp
                            task=POWDER, samples_per_step=samples_per_step)
     save_demos(folder, ds)
     return folder
+
+
+class CliResult:
+    """What an entry point run in-process by ``run_cli`` did: ``returncode``, ``stdout``, ``stderr``
+    (the fields of ``subprocess.CompletedProcess``)."""
+
+    def __init__(self, returncode, stdout: str, stderr: str):
+        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
+
+
+def run_cli(main, prog: str, argv, capsys) -> CliResult:
+    """Run an entry point ``main(argv) -> int`` in this process as the command ``prog`` runs it
+    (``lfd.cli.run_main``: user errors become one line on stderr and exit status 2); ``capsys``
+    is the test's pytest fixture, which captures what it printed."""
+    import pytest
+
+    from lfd.cli import run_main
+
+    capsys.readouterr()  # what the test printed before is not the command's
+    with pytest.raises(SystemExit) as info:
+        run_main(main, [str(a) for a in argv], prog=prog)
+    out, err = capsys.readouterr()
+    return CliResult(info.value.code, out, err)
+
+
+def entry_point(name: str):
+    """``(main, prog)`` of a command: ``train.py`` / ``plan.py`` (the repository's wrappers, with
+    their own prog names) or ``python -m <module>`` (the module's ``main``)."""
+    import functools
+    import importlib
+
+    if name in ("train.py", "plan.py"):
+        module = {"train.py": "lfd.train_cli", "plan.py": "sim.plan_cli"}[name]
+        return functools.partial(importlib.import_module(module).main, prog=name), name
+    if name.startswith("python -m "):
+        module = importlib.import_module(name.split()[-1])
+        return getattr(module, "main", None) or module._main, name
+    raise ValueError(f"unknown command {name!r}")

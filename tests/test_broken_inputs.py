@@ -24,7 +24,7 @@ from lfd.learn import FitConfig
 from lfd.model import ModelFormatError, TaskModel
 from lfd.robots import BAXTER_LEFT
 from lfd.tasks import POWDER, TaskSpec
-from helpers import rewrite_npz, small_demoset
+from helpers import entry_point, rewrite_npz, run_cli, small_demoset
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -42,11 +42,13 @@ def good_dir(tmp_path):
 
 
 def _cli_demos(path, *extra) -> subprocess.CompletedProcess:
+    """``python -m lfd.demos`` in a subprocess: for a case that could block (a FIFO), where a
+    timeout must end the test; the others call the entry function in-process (``run_cli``)."""
     return subprocess.run([sys.executable, "-m", "lfd.demos", str(path), *extra], cwd=ROOT,
                           capture_output=True, text=True, timeout=120)
 
 
-def _one_line_exit_2(r: subprocess.CompletedProcess, fragment: str) -> None:
+def _one_line_exit_2(r, fragment: str) -> None:
     assert r.returncode == 2, (r.returncode, r.stderr)
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert fragment in r.stderr, r.stderr
@@ -154,8 +156,9 @@ def test_empty_landmark_name_refused_before_any_fit(good_dir, kin):
         load_demos(good_dir, kin=kin)
 
 
-def test_demos_cli_refuses_too_few_time_steps(good_dir):
-    _one_line_exit_2(_cli_demos(good_dir, "--time-steps", "0"), "--time-steps must be at least 2")
+def test_demos_cli_refuses_too_few_time_steps(good_dir, capsys):
+    r = run_cli(*entry_point("python -m lfd.demos"), [good_dir, "--time-steps", "0"], capsys)
+    _one_line_exit_2(r, "--time-steps must be at least 2")
 
 
 # ----------------------------------------------------------------------------- fit options
@@ -248,9 +251,9 @@ def test_one_step_model_refused():
 
 
 # ----------------------------------------------------------------------------- plan.py
-def _plan(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "plan.py", *args], cwd=ROOT, capture_output=True, text=True,
-                          timeout=300)
+def _plan(capsys, *args):
+    """plan.py's entry function, in-process (``helpers.run_cli``)."""
+    return run_cli(*entry_point("plan.py"), args, capsys)
 
 
 @pytest.mark.parametrize("args,fragment", [
@@ -260,22 +263,25 @@ def _plan(*args) -> subprocess.CompletedProcess:
     (("--evaluate", "--task", "powder", "--seed", str(10**41)), "--seed must be in"),
     (("--evaluate", "--task", "powder", "--demos", "/nonexistent/demos"), "--demos /nonexistent/demos: no such folder"),
 ])
-def test_plan_cli_checks_seeds_and_folders_first(args, fragment):
-    _one_line_exit_2(_plan(*args), fragment)
+def test_plan_cli_checks_seeds_and_folders_first(args, fragment, capsys):
+    _one_line_exit_2(_plan(capsys, *args), fragment)
 
 
-def test_evaluation_whose_training_fails_exits_2_without_a_traceback(tmp_path):
-    """A variant trained on demand from broken demonstrations: train.py says why (one line), the
-    evaluation adds which variant failed, and nothing is simulated."""
+def test_evaluation_whose_training_fails_exits_2_without_a_traceback(tmp_path, capsys):
+    """A variant trained on demand from broken demonstrations: one line says which variant failed
+    and the training's reason; nothing is simulated and no model folder is left."""
     demos = tmp_path / "demos"
     save_demos(demos, small_demoset(2, 30, 0))
     rewrite_npz(demos / "demo_001.npz", dt=np.float64(-1.0))
-    r = _plan("--evaluate", "--task", "powder", "--scenarios", "1", "--workers", "1",
+    r = _plan(capsys, "--evaluate", "--task", "powder", "--scenarios", "1", "--workers", "1",
               "--variants", "learned+learned", "--models", str(tmp_path / "models"), "--demos", str(demos),
               "--out", str(tmp_path / "eval"))
     assert r.returncode == 2, r.stderr
     assert "Traceback" not in r.stderr
     lines = [line for line in r.stderr.strip().splitlines() if not line.startswith("[evaluate]")]
-    assert len(lines) == 2 and "must be positive" in lines[0], r.stderr  # train.py's own reason
-    assert "training the learned+learned model (learn-learn) failed with exit status 2" in lines[1]
+    assert len(lines) == 1, r.stderr
+    assert lines[0].startswith("plan.py: error: training the learned+learned model (learn-learn) failed with "
+                               "exit status 2: ")
+    assert "must be positive" in lines[0]  # the training's own reason
     assert not (tmp_path / "eval" / "runs.jsonl").exists()
+    assert not (tmp_path / "models" / "learn-learn").exists()

@@ -3,10 +3,7 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,9 +13,7 @@ from hypothesis import strategies as st
 from lfd.demos import DemoFormatError, DemoSet, load_demos, save_demos
 from lfd.robots import BAXTER_LEFT
 from lfd.tasks import POWDER
-from helpers import rewrite_npz, small_demoset
-
-ROOT = Path(__file__).resolve().parent.parent
+from helpers import entry_point, rewrite_npz, run_cli, small_demoset
 NAMES = ("bowl", "marker_1", "marker_2")
 
 
@@ -117,10 +112,9 @@ def test_not_a_zip_and_empty_folder(tmp_path, kin):
         load_demos(tmp_path / "absent", kin=kin)
 
 
-def test_cli_one_line_exit_2(good_dir):
+def test_cli_one_line_exit_2(good_dir, capsys):
     _rewrite(good_dir / "demo_001.npz", dt=np.float64(-1.0))
-    r = subprocess.run([sys.executable, "-m", "lfd.demos", str(good_dir)], capture_output=True, text=True,
-                       cwd=ROOT, timeout=120)
+    r = run_cli(*entry_point("python -m lfd.demos"), [good_dir], capsys)
     assert r.returncode == 2
     assert "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1

@@ -1,9 +1,6 @@
 """The kinesthetic demonstrator (sim/demos.py): generated once per module, small n."""
 
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,8 +10,7 @@ from lfd.kinematics import KinematicModel
 from sim import layout as L
 from sim.demo_paths import TASK_POINTS
 from sim.demos import MIN_IN_BOWL, bowl_positions, generate, replay
-
-ROOT = Path(__file__).resolve().parent.parent
+from helpers import entry_point, run_cli
 OTHER_POINT = (0.0, 0.02, 0.12)  # on the spoon's handle, not the default
 
 
@@ -110,9 +106,9 @@ def test_task_point_changes_the_followed_point(tmp_path, kin):
     (["--task", "powder", "--n", "0", "--out", "X"], "--n"),
     (["--task", "powder", "--task-point", "0", "0", "nan", "--out", "X"], "--task-point"),
 ])
-def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, args, msg):
+def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, args, msg):
     args = [a if a != "X" else str(tmp_path / "out") for a in args]
-    r = subprocess.run([sys.executable, "-m", "sim.demos", *args], cwd=ROOT, capture_output=True, text=True)
+    r = run_cli(*entry_point("python -m sim.demos"), args, capsys)
     assert r.returncode == 2
     lines = [ln for ln in r.stderr.strip().splitlines() if ln.strip()]
     assert len(lines) == 1 and msg in lines[0]

@@ -264,14 +264,15 @@ def test_missing_model_is_trained_with_the_learning_seed_not_the_scenario_seed(t
     models = tmp_path / "models"
     commands = []
 
-    def fake_train(cmd, check, cwd):
-        commands.append(cmd)
-        out = Path(cmd[cmd.index("--out") + 1])
+    def fake_train(argv):  # lfd.train_cli.main, called in-process
+        commands.append(argv)
+        out = Path(argv[argv.index("--out") + 1])
         out.mkdir(parents=True)
         (out / "model.pt").write_bytes(b"")
         (out / "config.json").write_text("{}")
+        return 0
 
-    monkeypatch.setattr(ev.subprocess, "run", fake_train)
+    monkeypatch.setattr(ev, "train_main", fake_train)
     monkeypatch.setattr(ev, "run_one", FakeRunOne())
     payload = ev.evaluate(replace(_settings(), seed=7), tmp_path / "eval", models)
     assert len(commands) == 2  # learn-learn and tip-bowl, each once
@@ -280,3 +281,26 @@ def test_missing_model_is_trained_with_the_learning_seed_not_the_scenario_seed(t
     assert payload["base_seed"] == 7
     by_name = {v.name: v for v in ev.VARIANTS}
     assert payload["models"] == {v: str(models / by_name[v].model_key) for v in VARIANTS}
+
+
+def test_missing_model_is_trained_in_this_process(tmp_path, monkeypatch, capsys):
+    """``ensure_model`` trains with ``lfd.train_cli.main`` in-process (no script, no subprocess),
+    with the variant's landmark choices, into the model folder the evaluation then reads."""
+    from helpers import synthetic_demo_dir
+    from lfd.train_cli import main as train_main
+    demos = synthetic_demo_dir(tmp_path / "demos", 2, 4, 2, (3, 4))
+    seen = []
+
+    def small_train(argv):  # the real training, made short
+        seen.append(list(argv))
+        return train_main([*argv, "--restarts", "1", "--time-steps", "4"])
+
+    monkeypatch.setattr(ev, "train_main", small_train)
+    v = next(x for x in ev.VARIANTS if x.name == "arbitrary+manual")
+    out = ev.ensure_model(TASK, tmp_path / "models", demos, v)
+    assert out == tmp_path / "models" / "gripper-bowl"
+    assert (out / "model.pt").is_file() and (out / "summary.json").is_file()
+    config = json.loads((out / "config.json").read_text())
+    assert config["options"]["tool"] == "gripper" and config["options"]["env"] == "bowl"
+    assert seen[0][seen[0].index("--seed") + 1] == "0"
+    assert ev.ensure_model(TASK, tmp_path / "models", demos, v) == out and len(seen) == 1  # trained once

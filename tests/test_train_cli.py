@@ -1,9 +1,11 @@
 """train.py and plan.py on bad input: one line on stderr, its own message, exit status 2.
 
-Every case runs the real script as a subprocess (``sys.executable``); the subprocesses of all
-cases are started together from one module fixture (a few at a time) since each spends most
-of its ~2-3 s importing torch. Numerical trouble (restarts whose loss becomes NaN) is tested
-in-process by poisoning the EM loss.
+Every case calls the command's entry function in this process as its script does
+(``lfd.cli.run_main`` of ``lfd.train_cli.main`` / ``sim.plan_cli.main`` with the argument list),
+capturing stdout and stderr. Numerical trouble (restarts whose loss becomes NaN) is tested by
+poisoning the EM loss. Then the command-line conventions themselves: help texts with defaults,
+the landmark vocabulary, ``--device``, no output folder left by a failed run, ``--quiet``,
+TensorBoard missing, ``--model`` given a file (``setup.py``'s console scripts: test_packaging.py).
 """
 
 from __future__ import annotations
@@ -11,9 +13,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
-import subprocess
 import sys
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -24,7 +24,7 @@ from lfd.checkpoint import FitProgress, save_checkpoint
 from lfd.demos import DemoSet, save_demonstration, save_demos
 from lfd.robots import BAXTER_LEFT, RobotSpec
 from lfd.tasks import POWDER
-from helpers import rewrite_npz, small_demoset, synthetic_demo_dir
+from helpers import entry_point, rewrite_npz, run_cli, small_demoset, synthetic_demo_dir
 
 ROOT = Path(__file__).resolve().parent.parent
 NAMES = ("bowl", "marker_1", "marker_2")
@@ -214,23 +214,11 @@ FRAGMENT_EXTRA = {"resume-no-checkpoint": "no checkpoint to resume from"}
 
 
 @pytest.fixture(scope="module")
-def results(tmp_path_factory):
-    """Run every case (3 subprocesses at a time); ``{id: CompletedProcess}``."""
-    good = tmp_path_factory.mktemp("good")
-    save_demos(good, _demoset())
-    argvs, dirs = {}, {}
-    for cid, setup, _ in CASES:
-        dirs[cid] = tmp_path_factory.mktemp(cid)
-        argvs[cid] = setup(dirs[cid], good)
-
-    def run(argv):
-        return subprocess.run([sys.executable, *argv], capture_output=True, text=True, cwd=ROOT, timeout=180)
-
-    with ThreadPoolExecutor(max_workers=3) as pool:
-        done = dict(zip(argvs, pool.map(run, argvs.values())))
-    for cid, r in done.items():
-        r.folder = dirs[cid]
-    return done
+def good(tmp_path_factory):
+    """A valid demonstration folder."""
+    d = tmp_path_factory.mktemp("good")
+    save_demos(d, _demoset())
+    return d
 
 
 def test_cases_are_distinct():
@@ -238,9 +226,11 @@ def test_cases_are_distinct():
     assert len({c[0] for c in CASES}) == len({c[2] for c in CASES}) == len(CASES)
 
 
-@pytest.mark.parametrize("cid,fragment", [(c[0], c[2]) for c in CASES], ids=[c[0] for c in CASES])
-def test_bad_input_one_line_exit_2(results, cid, fragment):
-    r = results[cid]
+@pytest.mark.parametrize("cid,setup,fragment", CASES, ids=[c[0] for c in CASES])
+def test_bad_input_one_line_exit_2(good, tmp_path, monkeypatch, capsys, cid, setup, fragment):
+    monkeypatch.chdir(tmp_path)  # a default output folder would be made here, never in the repository
+    command, *argv = setup(tmp_path, good)
+    r = run_cli(*entry_point(command), argv, capsys)
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2, r.stderr
     assert "Traceback" not in r.stderr
@@ -250,7 +240,10 @@ def test_bad_input_one_line_exit_2(results, cid, fragment):
     assert fragment in lines[0], lines[0]
     assert FRAGMENT_EXTRA.get(cid, "") in lines[0]
     if cid in NO_OUTPUT:
-        assert not (r.folder / NO_OUTPUT[cid]).exists()
+        assert not (tmp_path / NO_OUTPUT[cid]).exists()
+    if command == "train.py" and "--out" in argv and cid not in ("out-is-file", "out-under-a-file"):
+        out = Path(argv[argv.index("--out") + 1])  # a failed run leaves no folder it created
+        assert not out.exists() or cid == "resume-damaged-checkpoint", sorted(out.iterdir())
 
 
 # ----------------------------------------------------------------------------- numerical trouble
@@ -306,7 +299,7 @@ def test_all_restarts_failing_stops_without_a_model(synth_dir, tmp_path, monkeyp
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("train.py: error: every one of the 2 restarts failed")
-    assert not any((out / f).exists() for f in ("model.pt", "config.json", "summary.json"))
+    assert not out.exists()  # the folder it made (checkpoints, TensorBoard logs) is gone with the run
 
 
 def test_the_task_json_stride_is_the_default_and_subsample_overrides_it(synth_dir, tmp_path, capsys):
@@ -327,3 +320,139 @@ def test_the_task_json_stride_is_the_default_and_subsample_overrides_it(synth_di
         assert summary["dt"] == pytest.approx(stride * task.dt) == config["task"]["dt"]
         assert config["task"]["subsample"] == 1 and config["options"]["subsample"] == stride
     assert f"(1 in 2 of {n_raw}) at dt {2 * task.dt:g} s" in capsys.readouterr().out
+
+
+# ----------------------------------------------------------------------------- command-line conventions
+def _parsers():
+    from lfd import train_cli
+    from sim import plan_cli
+    return {"train.py": train_cli.build_parser("train.py"), "plan.py": plan_cli.build_parser("plan.py")}
+
+
+@pytest.mark.parametrize("command", ["train.py", "plan.py"])
+def test_every_option_has_help_with_its_default(command):
+    parser = _parsers()[command]
+    formatter = parser._get_formatter()
+    options = [a for a in parser._actions if a.option_strings and a.dest != "help"]
+    assert len(options) >= 10
+    for action in options:
+        assert action.help and len(action.help) > 10, action.option_strings
+        shown = formatter._get_help_string(action)
+        assert action.required or "default" in shown, (action.option_strings, shown)
+    text = parser.format_help()
+    for fragment in {"train.py": ["(default: cpu)", "(default: learned)", "(default: ./runs/<task>)",
+                                  "(default: ./runs/demos/<task>", "(default: 0)", "(default: off)"],
+                     "plan.py": ["(default: 10)", "(default: 2)", "(default: measured)",
+                                 "(default: ./runs/<task>/models)", "(default: off)"]}[command]:
+        assert fragment in " ".join(text.split()), fragment
+
+
+def test_help_states_the_fit_defaults():
+    """The defaults the help text spells out for options left to ``FitConfig`` are its defaults."""
+    from lfd.learn import FitConfig
+    cfg = FitConfig()
+    text = " ".join(_parsers()["train.py"].format_help().split())
+    assert f"FitConfig's, {cfg.restarts})" in text
+    assert f"FitConfig's, {' '.join(map(str, cfg.offsets))})" in text
+    assert f"FitConfig's, {cfg.floor_task:g})" in text and f"FitConfig's, {cfg.floor_joint:g})" in text
+    assert f"(default: {cfg.covariance})" in text and f"(default: {cfg.init})" in text
+    assert f"(default: {cfg.band})" in text
+
+
+def test_one_landmark_vocabulary_across_train_and_plan():
+    """train.py's --tool/--env take the names plan.py's variants are made of (the paper's
+    learned / manual / arbitrary); the former FitConfig names stay accepted."""
+    from lfd.train_cli import ENV_CHOICES, TOOL_CHOICES, parse_args
+    from sim.evaluate import VARIANTS
+
+    def chosen(*extra):
+        a = parse_args(["--task", "powder", *extra])
+        return a.tool, a.env
+
+    assert chosen() == ("learn", "learn")
+    assert chosen("--tool", "arbitrary", "--env", "manual") == ("gripper", "bowl")
+    assert chosen("--tool", "manual") == ("tip", "learn")
+    assert chosen("--tool", "gripper", "--env", "bowl") == ("gripper", "bowl")  # the former names
+    assert chosen("--tool", "tip", "--env", "learn") == ("tip", "learn")
+    for v in VARIANTS:
+        if "+" in v.name:
+            tool, env = v.name.split("+")
+            assert (TOOL_CHOICES[tool], ENV_CHOICES[env]) == (v.tool, v.env), v.name
+
+
+@pytest.mark.parametrize("device", ["cpu", "cpu:0", "cuda", "cuda:1", "mps", "meta"])
+def test_device_takes_any_torch_device_string(device):
+    from lfd.learn import FitConfig
+    from lfd.train_cli import parse_args
+    assert parse_args(["--task", "powder", "--device", device]).device == device
+    assert FitConfig(device=device).device == device
+
+
+@pytest.mark.parametrize("device", ["gpu", "tpu", "cuda:x", "", "cpu cuda"])
+def test_device_that_is_not_a_torch_device_is_one_line_exit_2(device, tmp_path, capsys):
+    r = run_cli(*entry_point("train.py"), ["--task", "powder", "--device", device, "--out", tmp_path / "o"],
+                capsys)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in r.stderr
+    assert lines[0].startswith(f"train.py: error: --device {device!r} is not a torch device string"), lines[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_failed_train_leaves_no_out_folder_and_keeps_the_exception(synth_dir, tmp_path, monkeypatch):
+    """A bug inside the fit is not swallowed (its traceback is the report), and the folders the
+    run created are removed; a folder that existed before keeps what it held."""
+    import lfd.learn
+    import train
+
+    def broken_fit(*args, **kwargs):
+        raise RuntimeError("a bug in the fit")
+
+    monkeypatch.setattr(lfd.learn, "fit", broken_fit)
+    argv = ["--task", "powder", "--demos", str(synth_dir), "--restarts", "1", "--time-steps", "5"]
+    out = tmp_path / "a" / "b" / "out"
+    with pytest.raises(RuntimeError, match="a bug in the fit"):
+        train.main([*argv, "--out", str(out)])
+    assert not (tmp_path / "a").exists()
+    existing = tmp_path / "mine"
+    existing.mkdir()
+    (existing / "notes.txt").write_text("keep me")
+    with pytest.raises(RuntimeError, match="a bug in the fit"):
+        train.main([*argv, "--out", str(existing)])
+    assert (existing / "notes.txt").read_text() == "keep me"
+
+
+def test_quiet_cwd_default_out_and_no_tensorboard(synth_dir, tmp_path, monkeypatch, capsys):
+    """--quiet drops the per-iteration lines; without --out the model goes to ./runs/<task> in the
+    current working directory; without TensorBoard one warning says so and the run goes on."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setitem(sys.modules, "torch.utils.tensorboard", None)  # import fails: not installed
+    r = run_cli(*entry_point("train.py"), ["--task", "powder", "--demos", synth_dir, "--restarts", "2",
+                                           "--time-steps", "5", "--quiet"], capsys)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "runs" / "powder" / "model.pt").is_file()
+    assert not (tmp_path / "runs" / "powder" / "tensorboard").exists()
+    assert " iter " not in r.stdout and "learned in" in r.stdout
+    warned = [line for line in r.stderr.splitlines() if "TensorBoard is not installed" in line]
+    assert len(warned) == 1 and warned[0].startswith("train.py: warning: "), r.stderr
+
+
+def test_progress_lines_without_quiet(synth_dir, tmp_path, capsys):
+    r = run_cli(*entry_point("train.py"), ["--task", "powder", "--demos", synth_dir, "--restarts", "1",
+                                           "--time-steps", "5", "--out", tmp_path / "o"], capsys)
+    assert r.returncode == 0, r.stderr
+    assert " iter 1: loss " in r.stdout
+    assert any((tmp_path / "o" / "tensorboard").iterdir())
+
+
+@pytest.mark.parametrize("name", ["model.pt", "config.json"])
+def test_plan_model_given_a_file_asks_for_the_folder(tmp_path, capsys, name):
+    d = tmp_path / "m"
+    d.mkdir()
+    (d / name).write_bytes(b"x")
+    for given in (d / name, tmp_path / "absent" / name):
+        r = run_cli(*entry_point("plan.py"), ["--model", given], capsys)
+        assert r.returncode == 2, r.stderr
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and "pass the model's folder" in lines[0], lines
+        assert f"--model {given.parent}" in lines[0]

@@ -3,16 +3,13 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
 
 from lfd.model import FORMAT, ModelFormatError, TaskModel
-
-ROOT = Path(__file__).resolve().parent.parent
+from helpers import entry_point, run_cli
 
 
 class _Exploit:
@@ -52,12 +49,11 @@ def test_not_a_model(tmp_path):
         TaskModel.load(tmp_path / "absent")
 
 
-def test_plan_cli_refuses_crafted_model(tmp_path):
+def test_plan_cli_refuses_crafted_model(tmp_path, capsys):
     marker = tmp_path / "pwned"
     d = _write_model_dir(tmp_path, {"tool": _Exploit(str(marker))})
     cfg = json.loads((d / "config.json").read_text())
-    r = subprocess.run([sys.executable, "plan.py", "--model", str(d), "--out", str(tmp_path / "o")],
-                       cwd=ROOT, capture_output=True, text=True, timeout=300)
+    r = run_cli(*entry_point("plan.py"), ["--model", d, "--out", tmp_path / "o"], capsys)
     assert r.returncode == 2, r.stderr
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not marker.exists()

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pybullet as p
@@ -14,8 +11,7 @@ from lfd.robots import BAXTER_LEFT, RobotSpec
 from lfd.tasks import POUR, POWDER
 from sim import layout as L
 from sim.world import World
-
-REPO = Path(__file__).resolve().parent.parent
+from helpers import entry_point, run_cli
 
 
 @pytest.fixture(scope="module")
@@ -140,9 +136,9 @@ def test_bad_world_arguments():
     (["--snapshot", "scene.jpg"], "must name a .png"),
     (["--steps", "x"], "argument --steps: invalid int value: 'x'"),  # argparse's error: one line too
 ])
-def test_cli_bad_input_exits_2_with_one_line(args, message):
-    r = subprocess.run([sys.executable, "-m", "sim.world", *args], cwd=REPO, capture_output=True, text=True,
-                       timeout=60)
+def test_cli_bad_input_exits_2_with_one_line(args, message, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # a relative --snapshot would be written here
+    r = run_cli(*entry_point("python -m sim.world"), args, capsys)
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0] and "Traceback" not in r.stderr

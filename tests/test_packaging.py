@@ -1,0 +1,120 @@
+"""Packaging: setup.py's console scripts, the one version, the distribution's name and
+requirements, the constraints file, and that no repository script is run through a subprocess
+(train.py and plan.py are thin wrappers of library functions, which ``make demo`` calls in-process).
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import re
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _setup_call():
+    """``(module tree, the setup(...) call's keywords)`` of setup.py, read without running it."""
+    tree = ast.parse((ROOT / "setup.py").read_text())
+    call = next(n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "setup")
+    return tree, {k.arg: k.value for k in call.keywords}
+
+
+def test_console_scripts_resolve_to_callables():
+    tree, _ = _setup_call()
+    scripts = next(ast.literal_eval(n.value) for n in tree.body
+                   if isinstance(n, ast.Assign) and getattr(n.targets[0], "id", "") == "CONSOLE_SCRIPTS")
+    names = {}
+    for spec in scripts:
+        name, target = (x.strip() for x in spec.split("="))
+        module, func = target.split(":")
+        names[name] = getattr(importlib.import_module(module), func)
+        assert callable(names[name]), spec
+    assert set(names) == {"lfd-train", "lfd-plan"}
+    assert names["lfd-train"].__module__.startswith("lfd.")  # the library's: no simulator needed
+    assert names["lfd-plan"].__module__.startswith("sim.")
+
+
+def test_setup_declares_the_distribution():
+    """One version (lfd.__version__, parsed by setup.py without importing lfd), a distribution name
+    that is not PyPI's other 'lfd', and the Baxter URDF's package in the plain install."""
+    import re
+    import lfd
+    tree, kw = _setup_call()
+    fn = next(n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "read_version")
+    ns = {"re": re, "Path": Path, "HERE": ROOT}
+    exec(compile(ast.Module(body=[fn], type_ignores=[]), "setup.py", "exec"), ns)
+    assert ns["read_version"]() == lfd.__version__
+    assert isinstance(kw["version"], ast.Call) and kw["version"].func.id == "read_version"
+    assert ast.literal_eval(kw["name"]) == "lfd-landmarks"
+    requires = ast.literal_eval(kw["install_requires"])
+    assert any(r.startswith("example-robot-data") for r in requires)
+    assert not any(r.startswith("pybullet") for r in requires)  # the simulator is the [sim] extra's
+    pins = dict(line.split("==") for line in (ROOT / "constraints.txt").read_text().splitlines()
+                if line and not line.startswith("#"))
+    assert pins["torch"] == "2.13.0"
+    for r in requires:
+        assert re.split(r"[<>=!~ ]", r)[0].lower().replace("_", "-") in {k.lower().replace("_", "-") for k in pins}
+
+
+def test_lfd_train_cli_imports_no_simulator():
+    import subprocess
+    code = ("import sys, lfd.train_cli\n"
+            "lfd.train_cli.parse_args(['--task', 'powder'])\n"
+            "bad = [m for m in sys.modules if m == 'pybullet' or m == 'sim' or m.startswith('sim.')]\n"
+            "assert not bad, bad\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+
+
+@pytest.mark.parametrize("path", ["lfd", "sim", "train.py", "plan.py"])
+def test_no_repository_script_runs_in_a_subprocess(path):
+    """The commands call library functions; a child process, where one is needed, runs a function
+    (multiprocessing), never a script path."""
+    files = [ROOT / path] if path.endswith(".py") else sorted((ROOT / path).rglob("*.py"))
+    for f in files:
+        text = f.read_text()
+        assert not re.search(r"^\s*(import subprocess|from subprocess )", text, flags=re.M), f
+        assert not re.search(r"\bos\.(system|popen|exec\w*|spawn\w*)\(", text), f
+
+
+@pytest.mark.parametrize("script,module", [("train.py", "lfd.train_cli"), ("plan.py", "sim.plan_cli")])
+def test_root_scripts_wrap_the_entry_functions(monkeypatch, script, module):
+    monkeypatch.syspath_prepend(str(ROOT))
+    wrapper = importlib.import_module(script[:-3])
+    target = importlib.import_module(module)
+    assert wrapper.main.func is target.main and wrapper.main.keywords == {"prog": script}
+    assert len(ast.parse((ROOT / script).read_text()).body) <= 10  # thin: imports and a call
+
+
+def test_demo_job_runs_its_stages_in_process(tmp_path, monkeypatch, capsys):
+    """``make demo``: the demonstrations and the evaluation (which trains missing models) are
+    library calls in this process, with outputs under ./runs of the working directory."""
+    import sim.demo_job as job
+    import sim.demos
+    import sim.plan_cli
+    calls = []
+
+    def fake_demos(argv):
+        calls.append(("demos", argv))
+        out = Path(argv[argv.index("--out") + 1])
+        out.mkdir(parents=True)
+        (out / "demo_000.npz").write_bytes(b"")
+        return 0
+
+    monkeypatch.setattr(sim.demos, "main", fake_demos)
+    monkeypatch.setattr(sim.plan_cli, "main", lambda argv: calls.append(("plan", argv)) or 0)
+    monkeypatch.chdir(tmp_path)
+    assert job.cli() == 0
+    assert [c[0] for c in calls] == ["demos", "plan"]
+    plan = calls[1][1]
+    assert plan[:2] == ["--evaluate", "--task"] and plan[plan.index("--scenarios") + 1] == "10"
+    assert plan[plan.index("--models") + 1] == str(Path("runs") / "powder" / "models")
+    assert (tmp_path / "runs" / "demos" / "powder" / "demo_000.npz").is_file()
+    calls.clear()
+    monkeypatch.setattr(sim.plan_cli, "main", lambda argv: 2)
+    assert job.cli() == 2 and not any(c[0] == "demos" for c in calls)  # demonstrations exist: kept
+    assert "make demo: lfd-plan failed with exit status 2" in capsys.readouterr().err
