@@ -27,15 +27,20 @@ or removed after ``make_collision_fns`` are honoured.
 Two interchangeable checkers (``method``), same answers, measured on 1,000 uniform random
 configurations (``benchmarks/collision.py``):
 
-* ``"shadow"`` (default, ~2.5x faster): a private DIRECT client holds a collision-only copy
+* ``"shadow"`` (default, faster): a private DIRECT client holds a collision-only copy
   of the robot (self collision enabled for exactly the checked pairs, via collision filter
   pairs), the table and copies of the obstacles; one ``performCollisionDetection`` per
-  configuration, then ``getContactPoints``. The world's client is only read, never written:
-  its joints, tool and particles are untouched by construction. The rest of the robot (right
-  arm, head, fingers) is copied once, at setup.
+  configuration for self collision (``getContactPoints``). The world's client is only read,
+  never written: its joints, tool and particles are untouched by construction. The rest of the
+  robot (right arm, head, fingers) is copied once, at setup.
 * ``"inplace"``: in the world's own client, an AABB prefilter per link pair, then
   ``getClosestPoints(distance=0)`` on the overlapping pairs; a context manager restores the
   arm's joint positions and velocities after every call.
+
+Both measure the scene the same way (``_too_close``): exact distances (``getClosestPoints``)
+of the moving links to the table and obstacles whose bounding boxes come within
+``OBSTACLE_MARGIN``; a configuration closer than that is in collision. Self collision is a
+touch (distance < 0).
 
 "Adjacent" pairs are excluded: links whose path in the kinematic tree crosses at most one arm
 joint (e.g. an upper shoulder and the torso, the tool and the gripper), plus the pairs in
@@ -58,10 +63,8 @@ import pybullet as p
 
 __all__ = ["CollisionFns", "make_collision_fns", "sweep_margin", "bisection_order", "joint_levers", "ALWAYS_TOUCHING"]
 
-# Pairs of (link, link) names not checked: Baxter's collision shapes overlap there at (nearly)
-# all configurations (share of 300 uniform random configurations in contact, measured).
-# The arm and the tool keep this clearance (m) from the table and the obstacles in the default
-# (shadow) checker; see check_here.
+# The arm and the tool keep this clearance (m) from the table and the obstacles (exact distances,
+# ``_too_close``).
 OBSTACLE_MARGIN = 0.015
 # How far (m) the executed arm may be from where it is commanded: PyBullet's position control
 # lags the minimum-jerk profile by at most 3.3 mm at any arm frame or the tool point (measured:
@@ -71,6 +74,8 @@ OBSTACLE_MARGIN = 0.015
 # nothing.
 TRACKING_ALLOWANCE = 0.005
 
+# Pairs of (link, link) names not checked: Baxter's collision shapes overlap there at (nearly)
+# all configurations (share of 300 uniform random configurations in contact, measured).
 ALWAYS_TOUCHING = frozenset(frozenset(pair) for pair in (
     ("left_lower_elbow", "left_upper_elbow_visual"),        # 100 %
     ("left_lower_forearm", "left_upper_forearm_visual"),    # 100 %
@@ -172,6 +177,23 @@ def _obstacle_names(world, obstacles, ignore):
     return [n for n in world.objects if n not in ignore and world.object_kind(n) in _OBSTACLE_KINDS]
 
 
+def _too_close(client, robot, moving, link_boxes, bodies, body_boxes) -> bool:
+    """Whether a moving link comes within ``OBSTACLE_MARGIN`` of a scene body: exact distances
+    (``getClosestPoints``) for the (link, body) pairs whose AABBs ``(M, 2, 3)``, ``(E, 2, 3)``
+    are that close. (Contact points from ``performCollisionDetection`` are no substitute: Bullet
+    reports positive-distance points for some shape pairs only, e.g. not for a finger's box
+    0.9 mm from a cylinder, which a run then touched.)"""
+    if not len(bodies):
+        return False
+    near = ((link_boxes[:, None, 0] - OBSTACLE_MARGIN <= body_boxes[None, :, 1])
+            & (body_boxes[None, :, 0] <= link_boxes[:, None, 1] + OBSTACLE_MARGIN)).all(axis=2)  # (M, E)
+    for i, e in zip(*np.nonzero(near)):
+        pts = p.getClosestPoints(robot, bodies[e], OBSTACLE_MARGIN, moving[i], -1, physicsClientId=client)
+        if any(pt[8] < OBSTACLE_MARGIN for pt in pts):
+            return True
+    return False
+
+
 def _inplace_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
     """``(check_here(q), restored)`` working in the world's own client."""
     client, robot = world.client, world.robot
@@ -198,8 +220,8 @@ def _inplace_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
             p.resetJointStatesMultiDof(robot, joints, [[s[0]] for s in saved],
                                        targetVelocities=[[s[1]] for s in saved], physicsClientId=client)
 
-    def hits(body_a, link_a, body_b, link_b) -> bool:
-        pts = p.getClosestPoints(body_a, body_b, 0.0, link_a, link_b, physicsClientId=client)
+    def hits(link_a, link_b) -> bool:
+        pts = p.getClosestPoints(robot, robot, 0.0, link_a, link_b, physicsClientId=client)
         return any(pt[8] < 0.0 for pt in pts)
 
     def check_here(q) -> bool:
@@ -209,12 +231,10 @@ def _inplace_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
         boxes = np.concatenate([moving_aabbs, fixed_aabbs])                                     # (M+S, 2, 3)
         A, B = moving_aabbs[pair_a], boxes[pair_b]                                              # (P, 2, 3)
         for k in np.flatnonzero(((A[:, 0] <= B[:, 1]) & (B[:, 0] <= A[:, 1])).all(axis=1)):
-            if hits(robot, pairs[k][0], robot, pairs[k][1]):
+            if hits(pairs[k][0], pairs[k][1]):
                 return True
         bodies, env = env_boxes()
-        near = ((moving_aabbs[:, None, 0] <= env[None, :, 1])
-                & (env[None, :, 0] <= moving_aabbs[:, None, 1])).all(axis=2)                     # (M, E)
-        return any(hits(robot, moving[i], bodies[e], -1) for i, e in zip(*np.nonzero(near)))
+        return _too_close(client, robot, moving, moving_aabbs, bodies, env)
 
     return check_here, restored, lambda: None
 
@@ -225,8 +245,6 @@ def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
     from sim.world import _patched_urdf
 
     shadow = p.connect(p.DIRECT)
-    # report contacts up to OBSTACLE_MARGIN away (Bullet's default breaking threshold is 0.02 m)
-    p.setPhysicsEngineParameter(contactBreakingThreshold=max(0.02, 2 * OBSTACLE_MARGIN), physicsClientId=shadow)
     with tempfile.TemporaryDirectory() as tmp:
         urdf = _patched_urdf(world.spec, world.task, Path(tmp))
         urdf.write_text(re.sub(r"<visual>.*?</visual>", "", urdf.read_text(), flags=re.S))
@@ -244,7 +262,12 @@ def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
             if frozenset((a, b)) not in checked:
                 p.setCollisionFilterPair(robot, robot, a, b, 0, physicsClientId=shadow)
     moving_set = frozenset(moving)
-    bodies = {"table": assets.build_table(shadow)}
+    def scene_body(body: int) -> int:
+        # out of performCollisionDetection (self collision only); _too_close measures the scene
+        p.setCollisionFilterGroupMask(body, -1, 0, 0, physicsClientId=shadow)
+        return body
+
+    bodies = {"table": scene_body(assets.build_table(shadow))}
     cache = {"version": None}
 
     def sync():
@@ -255,7 +278,7 @@ def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
             p.removeBody(bodies.pop(name), physicsClientId=shadow)
         for name in wanted:
             if name not in bodies:
-                bodies[name] = assets.BUILDERS[name][0](shadow)
+                bodies[name] = scene_body(assets.BUILDERS[name][0](shadow))
             pos, quat = p.getBasePositionAndOrientation(world.objects[name], physicsClientId=world.client)
             p.resetBasePositionAndOrientation(bodies[name], pos, quat, physicsClientId=shadow)
         cache["version"] = world.scene_version
@@ -264,15 +287,15 @@ def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
         sync()
         p.resetJointStatesMultiDof(robot, joints, [[v] for v in q.tolist()], physicsClientId=shadow)
         p.performCollisionDetection(physicsClientId=shadow)
-        for pt in p.getContactPoints(robot, physicsClientId=shadow):
-            # (flag, bodyA=robot, bodyB, linkA, linkB, ..., distance at 8)
-            # the arm keeps OBSTACLE_MARGIN from the scene (not from itself): between two checked
-            # configurations of a segment (at most `resolution` rad apart) a point of the tool can
-            # move a few centimetres, so a path that grazes an obstacle at the checks may hit it
-            margin = 0.0 if pt[2] == robot else OBSTACLE_MARGIN
-            if pt[8] < margin and (pt[3] in moving_set or (pt[2] == robot and pt[4] in moving_set)):
+        for pt in p.getContactPoints(robot, robot, physicsClientId=shadow):
+            # (flag, bodyA, bodyB, linkA, linkB, ..., distance at 8): self collision is a touch
+            if pt[8] < 0.0 and (pt[3] in moving_set or pt[4] in moving_set):
                 return True
-        return False
+        if cache.get("boxes_version") != cache["version"]:
+            cache.update(boxes_version=cache["version"], bodies=list(bodies.values()),
+                         boxes=np.array([p.getAABB(b, -1, physicsClientId=shadow) for b in bodies.values()]))
+        link_boxes = np.array([p.getAABB(robot, k, physicsClientId=shadow) for k in moving])  # (M, 2, 3)
+        return _too_close(shadow, robot, moving, link_boxes, cache["bodies"], cache["boxes"])
 
     closed = []
 
