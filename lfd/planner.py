@@ -343,7 +343,9 @@ class ClosedLoopPlanner:
                     qb = temps.q[b - temps.n] if b >= temps.n else rm.vertices[b]
                     stats["segment_checks"] += 1
                     temps.state[i] = BLOCKED if rm.segment_collides(qa, qb) else FREE
-                    hit |= temps.state[i] == BLOCKED
+                    if temps.state[i] == BLOCKED:
+                        hit = True
+                        stats["blocked"] += 1
         stats["segment_checks"] += E.counters["segment_checks"] - checks0
         stats["blocked"] += E.counters["blocked"] - blocked0
         G.blocked[:n_rm] = E.state == BLOCKED
