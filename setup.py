@@ -51,5 +51,9 @@ setup(
         "sim": ["pybullet>=3.2.5", "tensorboard>=2.12", "matplotlib>=3.6", "imageio>=2.30", "tqdm>=4.60"],
         "test": ["pytest>=7", "hypothesis>=6", "psutil>=5"],
     },
-    entry_points={"console_scripts": CONSOLE_SCRIPTS},
+    entry_points={
+        "console_scripts": CONSOLE_SCRIPTS,
+        # how lfd-train makes demonstrations when it finds none, without lfd importing sim
+        "lfd.demo_generators": ["sim = sim.demos:generate"],
+    },
 )

@@ -70,6 +70,52 @@ def test_lfd_train_cli_imports_no_simulator():
     assert r.returncode == 0, r.stderr
 
 
+def test_no_lfd_module_names_the_simulator():
+    """lfd never imports sim or PyBullet, not even lazily: every import statement and every
+    string handed to an importer in lfd/ is checked."""
+    offenders = []
+    for path in sorted((ROOT / "lfd").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                names = [node.module or ""]
+            elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+                names = [node.value] if re.fullmatch(r"(sim|pybullet)(\.\w+)*", node.value) else []
+            offenders += [f"{path.relative_to(ROOT)}:{node.lineno}: {n}" for n in names
+                          if n.split(".")[0] in ("sim", "pybullet")]
+    assert not offenders, offenders
+
+
+def test_demonstrations_come_from_the_registered_generator(tmp_path, monkeypatch):
+    """lfd-train finds the demonstration generator through the entry-point group that setup.py
+    declares (the simulator's), and says what to do when none is installed."""
+    import importlib.metadata as md
+
+    from lfd.cli import UsageError
+    from lfd.train_cli import DEMO_GENERATORS, ensure_demos
+
+    _, kw = _setup_call()
+    groups = ast.literal_eval(kw["entry_points"].values[1])
+    assert ast.literal_eval(kw["entry_points"].keys[1]) == DEMO_GENERATORS
+    assert groups == ["sim = sim.demos:generate"]
+    calls = []
+    ep = md.EntryPoint("fake", f"{__name__}:_fake_generator", DEMO_GENERATORS)
+    monkeypatch.setattr(md, "entry_points", lambda group: [ep] if group == DEMO_GENERATORS else [])
+    monkeypatch.setattr(sys.modules[__name__], "_fake_generator",
+                        lambda task, out, n, seed: calls.append((task, out, n, seed)), raising=False)
+    ensure_demos("pour", tmp_path / "d", 3)
+    assert calls == [("pour", tmp_path / "d", 11, 3)]
+    (tmp_path / "e").mkdir()
+    (tmp_path / "e" / "demo_000.npz").write_bytes(b"")
+    ensure_demos("pour", tmp_path / "e", 3)  # demonstrations there: nothing generated
+    assert len(calls) == 1
+    monkeypatch.setattr(md, "entry_points", lambda group: [])
+    with pytest.raises(UsageError, match="no demonstration generator is installed"):
+        ensure_demos("pour", tmp_path / "f", 3)
+
+
 @pytest.mark.parametrize("path", ["lfd", "sim", "train.py", "plan.py"])
 def test_no_repository_script_runs_in_a_subprocess(path):
     """The commands call library functions; a child process, where one is needed, runs a function
