@@ -2,8 +2,9 @@
 
 For each of N seeded scenarios (``sim.scenarios.draw_scenarios``, the evaluation's scenes) of a
 task: build the planner's roadmap in the scene (``build_s``, reported apart), plan from home
-(``initial``), then move the bowl to the scenario's second place while the robot is where that
-plan has it at the move's time step, and time the reaction: the landmark update (new costs
+(``initial``), then move the bowl to the scenario's second place (the powder's scenes have one;
+the pour's get one, ``sim.scenarios.with_bowl_move``) while the robot is where that plan has it
+at the move's time step, and time the reaction: the landmark update (new costs
 stale, moved-object regions, no regrowth: ``TaskPlanner.update_landmarks(grow=False)``) plus the
 search from that state (``reaction``). The first round of the biased regrowth for the new place
 and the plan after it (the anytime improvement, off the critical path) are timed too
@@ -112,7 +113,8 @@ def main(argv=None) -> int:
     from lfd.kinematics import KinematicModel
     from lfd.model import TaskModel
     from sim.evaluate import VARIANTS, ensure_model
-    from sim.scenarios import draw_scenarios
+    from sim.reach import DumpReach
+    from sim.scenarios import draw_scenarios, with_bowl_move
 
     torch.set_num_threads(1)
     models = args.models or ROOT / "runs" / args.task / "models"
@@ -120,7 +122,10 @@ def main(argv=None) -> int:
     model = TaskModel.load(model_dir)
     model.kin = KinematicModel.from_spec(model.robot, dtype=model.dtype)
     scenes = []
-    for k, sc in enumerate(draw_scenarios(args.task, args.scenes, args.seed, model.mu.shape[0])):
+    T = model.mu.shape[0]
+    with DumpReach(args.task) as reach:  # the pour's scenes keep the bowl still: give them a move
+        drawn = [with_bowl_move(sc, T, reach) for sc in draw_scenarios(args.task, args.scenes, args.seed, T, reach)]
+    for k, sc in enumerate(drawn):
         row = bench_scene(model, args.task, sc)
         scenes.append(row)
         r = row.get("reaction", {})

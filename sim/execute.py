@@ -146,8 +146,9 @@ class _ContactLog:
     """Contacts of the left arm and the tool with anything but particles.
 
     PyBullet reports contact points up to its contact-breaking threshold (2 cm) *before* the
-    bodies meet, with a positive distance; only points at most ``TOUCH_DISTANCE`` apart (touching
-    or penetrating) are logged, so a close pass is not a collision.
+    bodies meet, with a positive distance, for some shape pairs (for others only once they
+    touch); only points at most ``TOUCH_DISTANCE`` apart (touching or penetrating) are logged,
+    so a close pass is not a collision.
     """
 
     def __init__(self, world):

@@ -14,7 +14,8 @@ Drawing rule (also stated in the README):
   ``move_at_step`` = T/4, while the spoon is being carried towards it, before the dump) to a second uniform place in the square at least ``MIN_MOVE`` away;
   the four distractor markers are uniform in the square, lifted ``layout.MARKER_HEIGHT...``;
 * ``pour``: the vase, the scissors, the spoon and the (landmark) paper-towel roll are the
-  other sensed landmarks; vase and scissors/spoon are uniform in the square;
+  other sensed landmarks; vase and scissors/spoon are uniform in the square; the bowl stays
+  (the reaction benchmark moves it by the powder's rule: ``with_bowl_move``);
 * scenarios that no plan could solve are not drawn: an obstacle closer than
   ``CLEARANCE`` to the bowl (at either place) or to the source container is redrawn, and so
   is anything off the table; so is a scene where the arm cannot hold the tool as the
@@ -41,14 +42,15 @@ SEED_STRIDE = 100_003  # scenario i of the set with base seed S has seed S * SEE
 MAX_SCENARIO_SEED = 2**63
 MAX_BASE_SEED = MAX_SCENARIO_SEED // SEED_STRIDE - 1
 
-__all__ = ["Scenario", "draw_scenario", "draw_scenarios", "MIN_BOWL_SOURCE", "CLEARANCE", "SEED_STRIDE",
-           "MAX_SCENARIO_SEED", "MAX_BASE_SEED"]
+__all__ = ["Scenario", "draw_scenario", "draw_scenarios", "with_bowl_move", "MIN_BOWL_SOURCE", "CLEARANCE",
+           "SEED_STRIDE", "MAX_SCENARIO_SEED", "MAX_BASE_SEED", "ITEM_RADIUS"]
 
 MIN_BOWL_SOURCE = 0.30       # m, bowl centre to source container centre
 MIN_MOVE = 0.20              # m, how far the bowl moves in the powder closed-loop test
 CLEARANCE = 0.10             # m, free gap between an obstacle's and the bowl's / source's outline
 LAMP_BOTTOM_RANGE = (0.42, 0.55)  # m above the table top: at the height of the elbow and upper arm
 MAX_TRIES = 10_000
+ITEM_RADIUS = 0.08           # m, footprint of the scissors and the spoon lying on the table (pour)
 
 
 @dataclass(frozen=True)
@@ -56,8 +58,9 @@ class Scenario:
     """One test scene.
 
     ``placements``: object name -> ``(x, y)`` on the table or ``(x, y, z)`` base position.
-    ``bowl_after``: where the bowl moves (``powder``), applied when the executed time step
-    reaches ``move_at_step``; None for no move.
+    ``bowl_after``: where the bowl moves (``powder``; the reaction benchmark gives the pour's
+    scenes one too, ``with_bowl_move``), applied when the executed time step reaches
+    ``move_at_step``; None for no move.
     """
 
     task: str
@@ -143,7 +146,7 @@ def draw_scenario(task: str, seed: int, time_steps: int = 24, reach=None) -> Sce
                                              L.TABLE_TOP_Z + L.MARKER_HEIGHT_ABOVE_TABLE)
         else:
             taken = keep_out + [(towels, towel_r)]
-            for name, r in (("vase", L.VASE_RADIUS), ("scissors", 0.08), ("spoon", 0.08)):
+            for name, r in (("vase", L.VASE_RADIUS), ("scissors", ITEM_RADIUS), ("spoon", ITEM_RADIUS)):
                 xy = _in_square(rng)
                 if not (_on_table(xy, r) and _clear(xy, r, taken)):
                     ok = False
@@ -158,10 +161,45 @@ def draw_scenario(task: str, seed: int, time_steps: int = 24, reach=None) -> Sce
     raise RuntimeError(f"could not draw a solvable {task} scenario for seed {seed}")
 
 
-def draw_scenarios(task: str, n: int, base_seed: int = 0, time_steps: int = 24) -> list[Scenario]:
-    """``n`` scenarios of a set with ``base_seed``."""
+def draw_scenarios(task: str, n: int, base_seed: int = 0, time_steps: int = 24, reach=None) -> list[Scenario]:
+    """``n`` scenarios of a set with ``base_seed`` (``reach``: as in ``draw_scenario``)."""
     if n < 1:
         raise ValueError(f"the number of scenarios must be at least 1, got {n}")
-    from sim.reach import DumpReach
-    with DumpReach(task) as reach:
-        return [draw_scenario(task, base_seed * SEED_STRIDE + i, time_steps, reach) for i in range(n)]
+    if reach is None:
+        from sim.reach import DumpReach
+        with DumpReach(task) as own:
+            return draw_scenarios(task, n, base_seed, time_steps, own)
+    return [draw_scenario(task, base_seed * SEED_STRIDE + i, time_steps, reach) for i in range(n)]
+
+
+def with_bowl_move(scenario: Scenario, time_steps: int = 24, reach=None) -> Scenario:
+    """``scenario`` with a mid-task bowl move when it has none (the pour's evaluation scenes keep
+    the bowl still; the reaction benchmark moves it in both tasks): a second place drawn as the
+    powder's (uniform in the square, at least ``MIN_MOVE`` away, ``MIN_BOWL_SOURCE`` from the
+    source container), ``CLEARANCE`` from every object on the table, where the arm can hold the
+    tool over the bowl (``reach``, a ``sim.reach.DumpReach`` of the task), at step T/4. Seeded by
+    the scenario's seed (its own stream): the same scenario always gets the same move."""
+    if scenario.bowl_after is not None:
+        return scenario
+    if reach is None:
+        from sim.reach import DumpReach
+        with DumpReach(scenario.task) as own:
+            return with_bowl_move(scenario, time_steps, own)
+    if reach.task != scenario.task:
+        raise ValueError(f"reach checks the {reach.task!r} task, not {scenario.task!r}")
+    rng = np.random.default_rng([int(scenario.seed), 1])
+    source = np.asarray(L.SOURCE_DEFAULT_XY, dtype=float)
+    bowl = np.asarray(scenario.placements["bowl"], dtype=float)
+    bowl_r = L.BOWL_RADIUS + L.BOWL_WALL
+    radius = {"paper_towels": L.PAPER_TOWELS_RADIUS, "vase": L.VASE_RADIUS, "scissors": ITEM_RADIUS,
+              "spoon": ITEM_RADIUS}
+    others = [(np.asarray(scenario.placements[n][:2], dtype=float), r) for n, r in radius.items()
+              if n in scenario.placements] + [(source, float(np.hypot(*L.SOURCE_HALF_XY)))]
+    for _ in range(MAX_TRIES):
+        after = _in_square(rng)
+        if (np.linalg.norm(after - bowl) < MIN_MOVE or np.linalg.norm(after - source) < MIN_BOWL_SOURCE
+                or not _clear(after, bowl_r, others) or not reach(scenario.placements, after)):
+            continue
+        return Scenario(task=scenario.task, seed=scenario.seed, placements=dict(scenario.placements),
+                        bowl_after=tuple(after), move_at_step=time_steps // 4)
+    raise RuntimeError(f"could not draw a bowl move for the {scenario.task} scenario of seed {scenario.seed}")

@@ -88,6 +88,14 @@ def test_no_lfd_module_names_the_simulator():
     assert not offenders, offenders
 
 
+_GENERATED: list = []
+
+
+def _fake_generator(task, out_dir, n, seed):
+    """Stands in for sim.demos.generate behind a fake entry point: records its call."""
+    _GENERATED.append((task, out_dir, n, seed))
+
+
 def test_demonstrations_come_from_the_registered_generator(tmp_path, monkeypatch):
     """lfd-train finds the demonstration generator through the entry-point group that setup.py
     declares (the simulator's), and says what to do when none is installed."""
@@ -97,20 +105,20 @@ def test_demonstrations_come_from_the_registered_generator(tmp_path, monkeypatch
     from lfd.train_cli import DEMO_GENERATORS, ensure_demos
 
     _, kw = _setup_call()
-    groups = ast.literal_eval(kw["entry_points"].values[1])
-    assert ast.literal_eval(kw["entry_points"].keys[1]) == DEMO_GENERATORS
-    assert groups == ["sim = sim.demos:generate"]
-    calls = []
+    groups = dict(zip((ast.literal_eval(k) for k in kw["entry_points"].keys), kw["entry_points"].values))
+    assert ast.literal_eval(groups[DEMO_GENERATORS]) == ["sim = sim.demos:generate"]
+    # the environment this runs in (make test installs the package) resolves the real one
+    installed = {ep.name: ep.value for ep in md.entry_points(group=DEMO_GENERATORS)}
+    assert installed == {"sim": "sim.demos:generate"}, "reinstall the package: pip install -e ."
     ep = md.EntryPoint("fake", f"{__name__}:_fake_generator", DEMO_GENERATORS)
     monkeypatch.setattr(md, "entry_points", lambda group: [ep] if group == DEMO_GENERATORS else [])
-    monkeypatch.setattr(sys.modules[__name__], "_fake_generator",
-                        lambda task, out, n, seed: calls.append((task, out, n, seed)), raising=False)
+    _GENERATED.clear()
     ensure_demos("pour", tmp_path / "d", 3)
-    assert calls == [("pour", tmp_path / "d", 11, 3)]
+    assert _GENERATED == [("pour", tmp_path / "d", 11, 3)]
     (tmp_path / "e").mkdir()
     (tmp_path / "e" / "demo_000.npz").write_bytes(b"")
     ensure_demos("pour", tmp_path / "e", 3)  # demonstrations there: nothing generated
-    assert len(calls) == 1
+    assert len(_GENERATED) == 1
     monkeypatch.setattr(md, "entry_points", lambda group: [])
     with pytest.raises(UsageError, match="no demonstration generator is installed"):
         ensure_demos("pour", tmp_path / "f", 3)

@@ -414,3 +414,30 @@ def test_path_checks_are_a_fraction_of_the_edges():
     res = make_planner(rm, arc_means(T2)).plan(np.array([-0.7, 0.05]), 0)
     assert_path_valid(res)
     assert res.stats["segment_checks"] < 0.2 * rm.graph.number_of_edges()
+
+
+def test_a_blocked_start_edge_is_counted_and_avoided():
+    """The lazy checks of the temporary edges (from the start configuration into the roadmap)
+    count in ``stats["blocked"]`` like the roadmap's: the first path's start edge is made to
+    collide, nothing else does, and the plan equals Dijkstra's without that edge."""
+    rng = np.random.default_rng(3)
+    cut = []  # (q_start, neighbour) segments that collide
+
+    def segment_fn(a, b):
+        return any((np.array_equal(a, u) and np.array_equal(b, w)) or (np.array_equal(a, w) and np.array_equal(b, u))
+                   for u, w in cut)
+
+    rm = Roadmap.build(lambda n: rng.uniform(-1.0, 1.0, (n, 2)), 120, lambda q: False, segment_fn)
+    q0 = np.array([-0.7, 0.05])
+    free = make_planner(rm, arc_means(T2)).plan(q0, 0)
+    assert free.status == "ok" and free.stats["blocked"] == 0
+    first_hop = free.configurations[1]
+    assert not np.array_equal(first_hop, q0)  # the first edge moves (a start edge, not a wait)
+    cut.append((q0, first_hop))
+    res = make_planner(rm, arc_means(T2)).plan(q0, 0)
+    assert res.status == "ok" and res.stats["blocked"] == 1
+    P = res.configurations
+    assert not any(segment_fn(a, b) for a, b in zip(P[:-1], P[1:]))
+    assert res.cost >= free.cost
+    ref = reference_cost(rm, arc_means(T2), trans_table(T2), q0, 0, seg=segment_fn)
+    assert res.cost == pytest.approx(ref, rel=1e-9)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sim import layout as L
-from sim.scenarios import CLEARANCE, LAMP_BOTTOM_RANGE, MIN_BOWL_SOURCE, MIN_MOVE, draw_scenario
+from sim.scenarios import CLEARANCE, LAMP_BOTTOM_RANGE, MIN_BOWL_SOURCE, MIN_MOVE, Scenario, draw_scenario
 
 SEEDS = range(3)
 
@@ -63,6 +63,30 @@ def test_pour_scenarios_place_the_other_landmarks_and_do_not_move_the_bowl():
     sc = draw_scenario("pour", 0)
     assert sc.bowl_after is None and sc.move_at_step is None
     assert {"bowl", "paper_towels", "lamp_shade", "vase", "scissors", "spoon"} <= set(sc.placements)
+
+
+def test_a_pour_scene_gets_a_bowl_move_by_the_powders_rule_and_a_powder_scene_keeps_its_own(powder):
+    from sim.reach import DumpReach
+    from sim.scenarios import ITEM_RADIUS, with_bowl_move
+
+    assert with_bowl_move(powder[0]) is powder[0]
+    source = np.asarray(L.SOURCE_DEFAULT_XY)
+    bowl_r = L.BOWL_RADIUS + L.BOWL_WALL
+    with DumpReach("pour") as reach:
+        for seed in (0, 1):
+            sc = draw_scenario("pour", seed, reach=reach)
+            moved = with_bowl_move(sc, 24, reach)
+            assert moved.to_dict() == with_bowl_move(sc, 24, reach).to_dict()  # seeded by the scene
+            assert moved.placements == sc.placements and moved.move_at_step == 6
+            after, bowl = np.asarray(moved.bowl_after), np.asarray(sc.placements["bowl"])
+            assert _in_square(after) and np.linalg.norm(after - bowl) >= MIN_MOVE
+            assert np.linalg.norm(after - source) >= MIN_BOWL_SOURCE
+            for name, r in (("paper_towels", L.PAPER_TOWELS_RADIUS), ("vase", L.VASE_RADIUS),
+                            ("scissors", ITEM_RADIUS), ("spoon", ITEM_RADIUS)):
+                assert np.linalg.norm(after - np.asarray(sc.placements[name][:2])) >= r + bowl_r + CLEARANCE - 1e-9
+            assert reach(sc.placements, after)
+        with pytest.raises(ValueError, match="reach checks the 'pour' task"):
+            with_bowl_move(Scenario(task="powder", seed=0, placements=dict(sc.placements)), 24, reach)
 
 
 def test_dump_reach_refuses_a_bowl_under_a_low_obstacle_and_accepts_it_in_the_open(reach):
