@@ -43,7 +43,7 @@ MAX_SCENARIO_SEED = 2**63
 MAX_BASE_SEED = MAX_SCENARIO_SEED // SEED_STRIDE - 1
 
 __all__ = ["Scenario", "draw_scenario", "draw_scenarios", "with_bowl_move", "MIN_BOWL_SOURCE", "CLEARANCE",
-           "SEED_STRIDE", "MAX_SCENARIO_SEED", "MAX_BASE_SEED", "ITEM_RADIUS"]
+           "SEED_STRIDE", "MAX_SCENARIO_SEED", "MAX_BASE_SEED", "ITEM_RADIUS", "FOOTPRINT", "SOURCE_RADIUS"]
 
 MIN_BOWL_SOURCE = 0.30       # m, bowl centre to source container centre
 MIN_MOVE = 0.20              # m, how far the bowl moves in the powder closed-loop test
@@ -51,6 +51,10 @@ CLEARANCE = 0.10             # m, free gap between an obstacle's and the bowl's 
 LAMP_BOTTOM_RANGE = (0.42, 0.55)  # m above the table top: at the height of the elbow and upper arm
 MAX_TRIES = 10_000
 ITEM_RADIUS = 0.08           # m, footprint of the scissors and the spoon lying on the table (pour)
+# footprint radius (m) of each object an obstacle-free place must keep CLEARANCE from
+FOOTPRINT = {"paper_towels": L.PAPER_TOWELS_RADIUS, "vase": L.VASE_RADIUS, "scissors": ITEM_RADIUS,
+             "spoon": ITEM_RADIUS}
+SOURCE_RADIUS = float(np.hypot(*L.SOURCE_HALF_XY))  # m, the source container's footprint
 
 
 @dataclass(frozen=True)
@@ -97,6 +101,12 @@ def _clear(xy, radius, others) -> bool:
     return all(np.linalg.norm(np.asarray(xy) - np.asarray(c)) >= radius + r + CLEARANCE for c, r in others)
 
 
+def _bowl_move_ok(after, bowl, source) -> bool:
+    """The powder's rule for the bowl's second place: ``MIN_MOVE`` from the first, and
+    ``MIN_BOWL_SOURCE`` from the source container."""
+    return bool(np.linalg.norm(after - bowl) >= MIN_MOVE and np.linalg.norm(after - source) >= MIN_BOWL_SOURCE)
+
+
 def draw_scenario(task: str, seed: int, time_steps: int = 24, reach=None) -> Scenario:
     """The scenario of ``(task, seed)``; see the module docstring for the rule.
 
@@ -113,9 +123,8 @@ def draw_scenario(task: str, seed: int, time_steps: int = 24, reach=None) -> Sce
         raise ValueError(f"reach checks the {reach.task!r} task, not {task!r}")
     rng = np.random.default_rng(seed)
     source = np.asarray(L.SOURCE_DEFAULT_XY, dtype=float)
-    source_r = float(np.hypot(*L.SOURCE_HALF_XY))
     bowl_r = L.BOWL_RADIUS + L.BOWL_WALL
-    towel_r = L.PAPER_TOWELS_RADIUS
+    towel_r = FOOTPRINT["paper_towels"]
     for _ in range(MAX_TRIES):
         bowl = _in_square(rng)
         if np.linalg.norm(bowl - source) < MIN_BOWL_SOURCE:
@@ -124,11 +133,10 @@ def draw_scenario(task: str, seed: int, time_steps: int = 24, reach=None) -> Sce
         bowl_after = None
         if task == "powder":
             bowl_after = _in_square(rng)
-            if (np.linalg.norm(bowl_after - bowl) < MIN_MOVE
-                    or np.linalg.norm(bowl_after - source) < MIN_BOWL_SOURCE):
+            if not _bowl_move_ok(bowl_after, bowl, source):
                 continue
             bowls.append((bowl_after, bowl_r))
-        keep_out = bowls + [(source, source_r)]
+        keep_out = bowls + [(source, SOURCE_RADIUS)]
         towels = _on_line(rng, source, bowl, (0.35, 0.65), 0.04)
         if not (_on_table(towels, towel_r) and _clear(towels, towel_r, keep_out)):
             continue
@@ -146,7 +154,8 @@ def draw_scenario(task: str, seed: int, time_steps: int = 24, reach=None) -> Sce
                                              L.TABLE_TOP_Z + L.MARKER_HEIGHT_ABOVE_TABLE)
         else:
             taken = keep_out + [(towels, towel_r)]
-            for name, r in (("vase", L.VASE_RADIUS), ("scissors", ITEM_RADIUS), ("spoon", ITEM_RADIUS)):
+            for name in ("vase", "scissors", "spoon"):
+                r = FOOTPRINT[name]
                 xy = _in_square(rng)
                 if not (_on_table(xy, r) and _clear(xy, r, taken)):
                     ok = False
@@ -191,14 +200,12 @@ def with_bowl_move(scenario: Scenario, time_steps: int = 24, reach=None) -> Scen
     source = np.asarray(L.SOURCE_DEFAULT_XY, dtype=float)
     bowl = np.asarray(scenario.placements["bowl"], dtype=float)
     bowl_r = L.BOWL_RADIUS + L.BOWL_WALL
-    radius = {"paper_towels": L.PAPER_TOWELS_RADIUS, "vase": L.VASE_RADIUS, "scissors": ITEM_RADIUS,
-              "spoon": ITEM_RADIUS}
-    others = [(np.asarray(scenario.placements[n][:2], dtype=float), r) for n, r in radius.items()
-              if n in scenario.placements] + [(source, float(np.hypot(*L.SOURCE_HALF_XY)))]
+    others = [(np.asarray(scenario.placements[n][:2], dtype=float), r) for n, r in FOOTPRINT.items()
+              if n in scenario.placements] + [(source, SOURCE_RADIUS)]
     for _ in range(MAX_TRIES):
         after = _in_square(rng)
-        if (np.linalg.norm(after - bowl) < MIN_MOVE or np.linalg.norm(after - source) < MIN_BOWL_SOURCE
-                or not _clear(after, bowl_r, others) or not reach(scenario.placements, after)):
+        if not (_bowl_move_ok(after, bowl, source) and _clear(after, bowl_r, others)
+                and reach(scenario.placements, after)):
             continue
         return Scenario(task=scenario.task, seed=scenario.seed, placements=dict(scenario.placements),
                         bowl_after=tuple(after), move_at_step=time_steps // 4)
