@@ -6,7 +6,7 @@ STAMP := $(VENV)/.lfd-installed
 # Extra pytest arguments, e.g. `make test PYTEST_ARGS="-m slow"`.
 PYTEST_ARGS ?=
 
-.PHONY: demo test test-all bench clean-venv
+.PHONY: demo test test-all lint bench clean-venv
 
 $(STAMP): setup.py constraints.txt lfd/__init__.py
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -20,11 +20,16 @@ $(STAMP): setup.py constraints.txt lfd/__init__.py
 demo: $(STAMP)
 	$(PY) -m sim.demo_job
 
-test: $(STAMP)
+test: lint
 	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
 
-test-all: $(STAMP)
+test-all: lint
 	$(PY) -m pytest -q $(PYTEST_ARGS)
+
+# ruff on both packages, mypy on the library (ruff.toml, mypy.ini)
+lint: $(STAMP)
+	$(PY) -m ruff check lfd sim
+	$(PY) -m mypy lfd
 
 bench: $(STAMP)
 	$(PY) benchmarks/collision.py

@@ -36,6 +36,7 @@ setup(
     description="Learning manipulation tasks from demonstrations with learned virtual landmarks "
                 "(Bowen & Alterovitz), with a PyBullet executor",
     packages=find_packages(include=["lfd", "lfd.*", "sim", "sim.*"]),
+    package_data={"lfd": ["py.typed"]},
     python_requires=">=3.10",
     # torch is pinned in the Makefile (installed first, CPU build); any recent torch works here.
     install_requires=[
@@ -49,7 +50,8 @@ setup(
     extras_require={
         # The simulator, TensorBoard, plots and videos: what `make` installs.
         "sim": ["pybullet>=3.2.5", "tensorboard>=2.12", "matplotlib>=3.6", "imageio>=2.30", "tqdm>=4.60"],
-        "test": ["pytest>=7", "hypothesis>=6", "psutil>=5"],
+        # ruff and mypy run in `make test` (their versions pinned in constraints.txt: their rules change)
+        "test": ["pytest>=7", "hypothesis>=6", "psutil>=5", "ruff>=0.6", "mypy>=1.10"],
     },
     entry_points={
         "console_scripts": CONSOLE_SCRIPTS,

@@ -8,13 +8,15 @@ feature vector in a step's learned metric, and ``chain_edges`` joins consecutive
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch
 
 from lfd.ik import IKConfig, solve_ik
 from lfd.model import TaskModel
 
-__all__ = ["project_to_model", "biased_configurations", "chain_edges"]
+__all__ = ["biased_configurations", "chain_edges", "project_to_model"]
 
 IK_BLOCK = 4  # steps of a chain solved together from the block before's last solution
 
@@ -134,6 +136,7 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
     weights = torch.tensor([1, 1, 1, 0, 0, 0], dtype=model.dtype, device=model.device)
     T_target = torch.eye(4, dtype=model.dtype, device=model.device).repeat(chains, T, 1, 1)  # (C, T, 4, 4)
     T_target[..., :3, 3] = p_world
+    solve: dict[str, Any]  # solve_ik's keyword arguments
     if free_posture:  # the whole pose: the gripper turned as the sampled joints turn it
         T_target[..., :3, :3] = kin.fk(f[..., :d].reshape(-1, d)).reshape(chains, T, 4, 4)[..., :3, :3]
         solve = dict(p_ee_tool=model.tool, config=IKConfig(max_iters=60, min_iters=5, pos_tol=5e-3, rot_tol=0.05))
@@ -150,7 +153,7 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
     for k, t0 in enumerate(starts):
         t1 = starts[k + 1] if k + 1 < len(starts) else T
         b = t1 - t0
-        rest = {} if free_posture else {"q_rest": q_rest[:, t0:t1].reshape(-1, d)}
+        rest: dict[str, Any] = {} if free_posture else {"q_rest": q_rest[:, t0:t1].reshape(-1, d)}
         res = solve_ik(kin, T_target[:, t0:t1].reshape(-1, 4, 4), seed.repeat_interleave(b, dim=0),
                        **solve, **rest)
         steps = torch.arange(t0, t1, device=model.device).repeat(chains)  # (C*b,) each row's step

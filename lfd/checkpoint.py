@@ -34,10 +34,23 @@ from pathlib import Path
 import numpy as np
 import torch
 
-__all__ = ["FitProgress", "CheckpointError", "Interrupted", "InterruptGuard", "atomic_write_bytes",
-           "atomic_write_text", "atomic_torch_save", "save_checkpoint", "load_checkpoint",
-           "checkpoint_path", "remove_checkpoint", "config_record", "demos_fingerprint", "temp_files",
-           "STATE_TENSORS"]
+__all__ = [
+    "STATE_TENSORS",
+    "CheckpointError",
+    "FitProgress",
+    "InterruptGuard",
+    "Interrupted",
+    "atomic_torch_save",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "checkpoint_path",
+    "config_record",
+    "demos_fingerprint",
+    "load_checkpoint",
+    "remove_checkpoint",
+    "save_checkpoint",
+    "temp_files",
+]
 
 FORMAT = "lfd-fit-checkpoint/1"
 RECORD = "checkpoint.json"

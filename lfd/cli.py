@@ -18,8 +18,16 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["UsageError", "ArgumentParser", "DefaultsHelpFormatter", "run_main", "writable_dir", "error_line",
-           "USER_ERRORS", "EXIT_BROKEN_PIPE"]
+__all__ = [
+    "EXIT_BROKEN_PIPE",
+    "USER_ERRORS",
+    "ArgumentParser",
+    "DefaultsHelpFormatter",
+    "UsageError",
+    "error_line",
+    "run_main",
+    "writable_dir",
+]
 
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE: what a shell reports for a tool killed by a closed pipe
 
@@ -73,7 +81,7 @@ class ArgumentParser(argparse.ArgumentParser):
         kwargs.setdefault("formatter_class", DefaultsHelpFormatter)
         super().__init__(*args, **kwargs)
 
-    def error(self, message: str):  # noqa: D401 - argparse's hook
+    def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
@@ -109,7 +117,7 @@ def run_main(main, argv=None, prog: str | None = None) -> None:
         try:
             code = int(main(argv) or 0)
         except SystemExit as e:  # argparse's own exit (--help, a bad argument): flushed below
-            code = e.code
+            code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
         except KeyboardInterrupt:
             print(f"{prog}: interrupted", file=sys.stderr)
             code = 130

@@ -39,8 +39,15 @@ from lfd.robots import RobotSpec
 from lfd.se3 import rigid_errors
 from lfd.tasks import TaskSpec, check_point, check_stride
 
-__all__ = ["Demonstration", "DemoSet", "DemoFormatError", "load_demos", "save_demonstration",
-           "save_demos", "REQUIRED_KEYS"]
+__all__ = [
+    "REQUIRED_KEYS",
+    "DemoFormatError",
+    "DemoSet",
+    "Demonstration",
+    "load_demos",
+    "save_demonstration",
+    "save_demos",
+]
 
 REQUIRED_KEYS = ("q", "dt", "joint_names", "landmark_poses", "landmark_names", "robot")
 LIMIT_TOLERANCE = 0.02  # rad: recorded joints may sit this far outside the URDF limits
@@ -89,7 +96,7 @@ class DemoSet:
     def n_observations(self) -> int:
         return sum(d.n_samples for d in self.demos)
 
-    def subsample(self, stride: int) -> "DemoSet":
+    def subsample(self, stride: int) -> DemoSet:
         """Every ``stride``-th sample of each demonstration, the first included, at ``stride * dt``
         (up to ``stride - 1`` samples after the last kept one are dropped).
 
@@ -317,6 +324,7 @@ def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
                                 f"the task model")
         demos.append(demo)
 
+    assert first is not None  # files is not empty (checked above)
     _, joint_names, landmark_names, robot, dt0 = first
     if task is not None and abs(task.dt - dt0) > 1e-9 * max(1.0, dt0):
         raise DemoFormatError(f"{root / 'task.json'}: dt={task.dt} differs from the demonstrations' "

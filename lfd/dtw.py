@@ -16,8 +16,16 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-__all__ = ["dtw_align", "min_samples", "random_alignment", "linear_alignment", "reference_alignments",
-           "alignment_step_counts", "step_occupancy", "effective_demos"]
+__all__ = [
+    "alignment_step_counts",
+    "dtw_align",
+    "effective_demos",
+    "linear_alignment",
+    "min_samples",
+    "random_alignment",
+    "reference_alignments",
+    "step_occupancy",
+]
 
 
 def min_samples(time_steps: int, offsets=(0, 1, 2)) -> int:

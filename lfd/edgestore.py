@@ -33,7 +33,7 @@ costs ``trans[t, k] + ell[v, t + k]`` (``lfd.stsearch``).
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -41,16 +41,16 @@ import torch
 from lfd.roadmap import Roadmap
 from lfd.stepcost import StepCost
 
-__all__ = ["EdgeStore", "UNKNOWN", "FREE", "BLOCKED"]
+__all__ = ["BLOCKED", "FREE", "UNKNOWN", "EdgeStore"]
 
 UNKNOWN, FREE, BLOCKED = 0, 1, 2
 
 
-def _cat(parts: list[tuple[torch.Tensor, ...]]) -> tuple[torch.Tensor, ...] | None:
-    parts = [p for p in parts if p is not None]
-    if not parts:
+def _cat(parts: list[tuple[torch.Tensor, ...] | None]) -> tuple[torch.Tensor, ...] | None:
+    kept = [p for p in parts if p is not None]
+    if not kept:
         return None
-    return tuple(torch.cat(xs) for xs in zip(*parts)) if len(parts) > 1 else parts[0]
+    return tuple(torch.cat(xs) for xs in zip(*kept)) if len(kept) > 1 else kept[0]
 
 
 def interior_points(Qa: np.ndarray, Qb: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -17,7 +17,7 @@ from lfd.dtw import dtw_align
 from lfd.model import aligned_nll_tensor, landmarks_inverse_tensor, step_nll_tensor
 from lfd.priors import estimate_log_trans, floor_prior, volume_prior
 
-__all__ = ["FitData", "EMFitter", "EM_FAILURES"]
+__all__ = ["EM_FAILURES", "EMFitter", "FitData"]
 
 # what a restart that diverged raises (a non-finite loss, a covariance that is not positive definite)
 EM_FAILURES = (FloatingPointError, torch.linalg.LinAlgError)
@@ -228,7 +228,7 @@ class EMFitter:
     def total_loss(self, tool, w, mu, sigma_inv, values):
         """Negative log posterior per observation given the DTW values of the current alignment."""
         with torch.no_grad():
-            f, A = self.data.features(tool, w, self.T_lm)
+            _f, A = self.data.features(tool, w, self.T_lm)
             out = values.sum() + floor_prior(sigma_inv, self.floor, self.nu) + self.zeta_terms(tool, w, A)
             if self.cfg.eta_prior is not None:
                 out = out + self.cfg.eta_prior(mu, sigma_inv)

@@ -31,8 +31,14 @@ import torch
 
 from lfd.kinematics import KinematicModel
 
-__all__ = ["IKConfig", "IKResult", "solve_ik", "solve_ik_tensor", "rotation_error",
-           "tool_point_positions"]
+__all__ = [
+    "IKConfig",
+    "IKResult",
+    "rotation_error",
+    "solve_ik",
+    "solve_ik_tensor",
+    "tool_point_positions",
+]
 
 
 @dataclass(frozen=True)
@@ -265,7 +271,7 @@ def solve_ik(kin: KinematicModel, T_world_target, q_seed, p_ee_tool=None, weight
         inputs of the wrong shape (the message quotes what arrived).
     """
     config = config or IKConfig()
-    as_t = lambda x: torch.as_tensor(x, dtype=kin.dtype, device=kin.device)  # noqa: E731
+    as_t = lambda x: torch.as_tensor(x, dtype=kin.dtype, device=kin.device)
     T = as_t(T_world_target)
     if T.shape[-2:] != (4, 4) or T.dim() not in (2, 3):
         raise ValueError(f"T_world_target must have shape (B, 4, 4) or (4, 4), got {tuple(T.shape)}")

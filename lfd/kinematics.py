@@ -29,11 +29,14 @@ class KinematicsError(ValueError):
 def _joint_table(urdf_text: str) -> dict[str, dict]:
     """Per joint of the URDF: type, lower, upper, velocity (None when absent)."""
     root = ET.fromstring(urdf_text)
-    table = {}
+    table: dict[str, dict] = {}
     for j in root.iter("joint"):
         lim = j.find("limit")
-        get = (lambda k: float(lim.get(k)) if lim is not None and lim.get(k) is not None else None)
-        table[j.get("name")] = {"type": j.get("type"), "lower": get("lower"), "upper": get("upper"),
+
+        def get(k, lim=lim):
+            return float(lim.get(k)) if lim is not None and lim.get(k) is not None else None
+
+        table[j.get("name", "")] = {"type": j.get("type"), "lower": get("lower"), "upper": get("upper"),
                                 "velocity": get("velocity")}
     return table
 
@@ -108,7 +111,7 @@ class KinematicModel:
 
     @classmethod
     def from_spec(cls, spec: RobotSpec = BAXTER_LEFT, dtype: torch.dtype = torch.float64,
-                  device: str | torch.device = "cpu") -> "KinematicModel":
+                  device: str | torch.device = "cpu") -> KinematicModel:
         """The model of a ``RobotSpec`` (Baxter's left arm by default)."""
         try:
             path = resolve_urdf(spec.urdf)
@@ -120,7 +123,7 @@ class KinematicModel:
     def dof(self) -> int:
         return len(self.joint_names)
 
-    def to(self, dtype: torch.dtype | None = None, device=None) -> "KinematicModel":
+    def to(self, dtype: torch.dtype | None = None, device=None) -> KinematicModel:
         """A copy of this model with another dtype and/or device."""
         new = object.__new__(KinematicModel)
         new.__dict__.update(self.__dict__)

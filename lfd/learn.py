@@ -35,8 +35,8 @@ import itertools
 import math
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Callable
 
 import numpy as np
 import torch
@@ -47,7 +47,7 @@ from lfd.em import EM_FAILURES, EMFitter, FitData
 from lfd.model import COVARIANCES, OFFSETS, TaskModel
 from lfd.tasks import check_stride, check_whole
 
-__all__ = ["FitConfig", "FitResult", "fit", "initial_guesses", "TOOL_MODES", "ENV_MODES", "M_STEPS", "INITS"]
+__all__ = ["ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitResult", "fit", "initial_guesses"]
 
 _Data, _Fitter = FitData, EMFitter  # former private names (tests reach in)
 
@@ -203,7 +203,7 @@ def _resolve(cfg: FitConfig):
     return DTYPES[cfg.dtype], torch.device(cfg.device)
 
 
-def initial_guesses(seed: int, lengths, time_steps: int, n_landmarks: int, cfg: "FitConfig",
+def initial_guesses(seed: int, lengths, time_steps: int, n_landmarks: int, cfg: FitConfig,
                     fixed_tool=None, fixed_env=None, series=None):
     """Yield each restart's start ``(alignments, tool0 (3,), w0 (Z,))``, drawn in turn from one
     generator seeded with ``seed``: a pure function of its arguments, so a fit resumed after
@@ -325,12 +325,11 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     need = min_samples(T, cfg.offsets)
     short = [d.name or str(i) for i, d in enumerate(demoset.demos) if d.n_samples < need]
     if short:
-        kept = f" after keeping 1 sample in {cfg.subsample} (FitConfig.subsample)" if cfg.subsample > 1 else ""
-        raise ValueError(f"demonstration(s) {short} have fewer than {need} samples{kept}, too few for "
+        stride = f" after keeping 1 sample in {cfg.subsample} (FitConfig.subsample)" if cfg.subsample > 1 else ""
+        raise ValueError(f"demonstration(s) {short} have fewer than {need} samples{stride}, too few for "
                          f"{T} time steps with offsets {cfg.offsets}")
-    if cfg.tool == "tip" or cfg.env == "bowl":
-        if demoset.task is None:
-            raise ValueError(f"tool={cfg.tool!r}, env={cfg.env!r} need the demonstrations' task.json")
+    if (cfg.tool == "tip" or cfg.env == "bowl") and demoset.task is None:
+        raise ValueError(f"tool={cfg.tool!r}, env={cfg.env!r} need the demonstrations' task.json")
     data = FitData(demoset, kin, dtype, device)
     t_fk = time.perf_counter() - t0
     torch.manual_seed(cfg.seed)
@@ -353,14 +352,19 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
         def on_iter(it, loss, state):
             if callback is None:
                 return
-            tool, w, mu, sigma_inv, log_trans, align = state
+            tool, w, mu, sigma_inv, _log_trans, align = state
             callback({"stage": stage, "restart": r, "iteration": it, "loss": loss,
                       "tool": tool.cpu().numpy(), "env": w.cpu().numpy(), "landmarks": lm_names,
                       "alignments": align, "mu": mu, "sigma_inv": sigma_inv})
         return on_iter
 
     fitter = EMFitter(data, cfg, dtype, device, list(range(Z)))
-    histories, losses, iters, notes, best, first = [], [], [], [], None, 0
+    histories: list[tuple] = []
+    losses: list[float] = []
+    iters: list[int] = []
+    notes: list[str] = []
+    best: tuple | None = None
+    first = 0
     if resume is not None:
         histories, losses = list(resume.loss_history), list(resume.restart_losses)
         iters, notes, first = list(resume.em_iterations), list(resume.notes), resume.restarts_done
@@ -377,9 +381,13 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
         except EM_FAILURES as e:
             notes.append(f"restart {r} dropped: {e}")
             warnings.warn(notes[-1], RuntimeWarning)
-            histories.append(()), losses.append(float("nan")), iters.append(0)
+            histories.append(())
+            losses.append(float("nan"))
+            iters.append(0)
         else:
-            histories.append(tuple(hist)), losses.append(hist[-1]), iters.append(len(hist))
+            histories.append(tuple(hist))
+            losses.append(hist[-1])
+            iters.append(len(hist))
             if best is None or hist[-1] < losses[best[0]]:
                 best = (r, state)
         if on_restart is not None:
@@ -403,7 +411,8 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
             try:
                 state, hist = fitter.em(tool, wk, align, learn_tool, len(kept) > 1,
                                         emit("refit", best_r, tuple(names[i] for i in kept)))
-                histories.append(tuple(hist)), iters.append(len(hist))
+                histories.append(tuple(hist))
+                iters.append(len(hist))
                 tool, w, mu, sigma_inv, log_trans, align = state
                 final_loss = hist[-1]
             except EM_FAILURES as e:

@@ -29,9 +29,19 @@ import torch
 from lfd.robots import RobotSpec
 from lfd.tasks import TaskSpec
 
-__all__ = ["TaskModel", "ModelFormatError", "COVARIANCES", "OFFSETS", "FORMAT",
-           "landmarks_inverse_tensor", "virtual_inverse_tensor", "features_tensor",
-           "logdet_tensor", "step_nll_tensor", "aligned_nll_tensor"]
+__all__ = [
+    "COVARIANCES",
+    "FORMAT",
+    "OFFSETS",
+    "ModelFormatError",
+    "TaskModel",
+    "aligned_nll_tensor",
+    "features_tensor",
+    "landmarks_inverse_tensor",
+    "logdet_tensor",
+    "step_nll_tensor",
+    "virtual_inverse_tensor",
+]
 
 COVARIANCES = ("full", "block")
 OFFSETS = (0, 1, 2)
@@ -213,7 +223,7 @@ class TaskModel:
     def kin(self, value):
         self._kin = value
 
-    def to(self, dtype: torch.dtype | None = None, device=None) -> "TaskModel":
+    def to(self, dtype: torch.dtype | None = None, device=None) -> TaskModel:
         """A copy with another dtype and/or device (the kinematic model follows)."""
         new = object.__new__(TaskModel)
         new.__dict__.update(self.__dict__)
@@ -286,7 +296,7 @@ class TaskModel:
 
     @classmethod
     def load(cls, model_dir: str | Path, dtype: torch.dtype = torch.float64, device="cpu",
-             kin=None) -> "TaskModel":
+             kin=None) -> TaskModel:
         """Rebuild a model written by ``save``.
 
         Raises

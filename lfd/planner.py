@@ -24,6 +24,7 @@ shapes (programming errors) raise ``ValueError``.
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from dataclasses import dataclass, field
@@ -35,7 +36,7 @@ from lfd.roadmap import Roadmap, k_prm_star
 from lfd.stepcost import CostError, StepCost
 from lfd.stsearch import SearchBudgetExceeded, SearchGraph, astar, cost_to_go, transition_table
 
-__all__ = ["PlannerSettings", "PlanResult", "ClosedLoopPlanner", "STATUSES"]
+__all__ = ["STATUSES", "ClosedLoopPlanner", "PlanResult", "PlannerSettings"]
 
 STATUSES = ("ok", "no_path", "start_in_collision", "goal_in_collision", "missing_landmark",
             "invalid_cost", "budget_exceeded", "unreachable")
@@ -231,7 +232,8 @@ class ClosedLoopPlanner:
         except CostError as e:
             return self._result("invalid_cost", tic, str(e))
         stats["cost_s"] = time.perf_counter() - t0
-        status, message, path, cost = "ok", "", [], math.inf
+        status, message, cost = "ok", "", math.inf
+        path: list = []
         try:
             path, cost = self._search(temps, int(t_current), g is not None, ell, W, stats)
             if not path:
@@ -316,7 +318,7 @@ class ClosedLoopPlanner:
         rm, E = self.roadmap, self.edges
         n_rm = len(E.ends)
         rows = []
-        for (a, ta), (b, tb) in zip(path[:-1], path[1:]):
+        for (a, ta), (b, tb) in itertools.pairwise(path):
             if a != b:
                 rows.append(G.row_of(a, b))
         hit = False

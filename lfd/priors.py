@@ -29,7 +29,7 @@ import torch
 
 from lfd.dtw import alignment_step_counts
 
-__all__ = ["floor_prior", "volume_prior", "estimate_log_trans", "uniform_log_trans"]
+__all__ = ["estimate_log_trans", "floor_prior", "uniform_log_trans", "volume_prior"]
 
 
 def floor_prior(sigma_inv: torch.Tensor, floor: torch.Tensor, nu: float) -> torch.Tensor:

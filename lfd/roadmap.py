@@ -26,14 +26,14 @@ edges were added (``edge_array()[eid]`` are its ends).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import networkx as nx
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["RoadmapSettings", "Roadmap", "k_prm_star", "mixed_samples", "ik_biased_samples"]
+__all__ = ["Roadmap", "RoadmapSettings", "ik_biased_samples", "k_prm_star", "mixed_samples"]
 
 
 def k_prm_star(n: int, d: int, k_scale: float = 1.0) -> int:
@@ -99,7 +99,7 @@ class Roadmap:
     @classmethod
     def build(cls, sample_fn: Callable, n: int, collision_fn: Callable, segment_fn: Callable, *,
               biased_samples: np.ndarray | None = None, batch_collision_fn: Callable | None = None,
-              settings: RoadmapSettings = RoadmapSettings()) -> "Roadmap":
+              settings: RoadmapSettings = RoadmapSettings()) -> Roadmap:
         """Sample ``n`` collision-free vertices and connect them.
 
         ``biased_samples: (m, d)`` are candidate configurations (e.g. from ``mixed_samples`` or

@@ -14,7 +14,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["RobotSpec", "BAXTER_LEFT", "example_robot_data_share", "resolve_urdf", "robot_from_name"]
+__all__ = ["BAXTER_LEFT", "RobotSpec", "example_robot_data_share", "resolve_urdf", "robot_from_name"]
 
 BAXTER_LEFT_JOINTS = ("left_s0", "left_s1", "left_e0", "left_e1", "left_w0", "left_w1", "left_w2")
 
@@ -37,7 +37,7 @@ class RobotSpec:
                 "joint_names": list(self.joint_names)}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "RobotSpec":
+    def from_dict(cls, d: dict) -> RobotSpec:
         try:
             return cls(name=str(d["name"]), urdf=str(d["urdf"]), end_link=str(d["end_link"]),
                        joint_names=tuple(str(j) for j in d["joint_names"]))

@@ -32,14 +32,15 @@ cost, a user's own model) with a known lower bound ``floor`` (one number or ``(T
 
 from __future__ import annotations
 
-from typing import Callable, Protocol
+from collections.abc import Callable
+from typing import Protocol
 
 import numpy as np
 import torch
 
 from lfd.model import TaskModel
 
-__all__ = ["StepCost", "ModelStepCost", "CallableStepCost", "CostError"]
+__all__ = ["CallableStepCost", "CostError", "ModelStepCost", "StepCost"]
 
 
 class CostError(ValueError):

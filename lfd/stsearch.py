@@ -30,14 +30,14 @@ from __future__ import annotations
 
 import heapq
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import networkx as nx
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
-__all__ = ["SearchGraph", "transition_table", "cost_to_go", "astar", "SearchBudgetExceeded"]
+__all__ = ["SearchBudgetExceeded", "SearchGraph", "astar", "cost_to_go", "transition_table"]
 
 _BIG = 1e300  # stands for +inf inside scipy's Dijkstra
 
@@ -81,13 +81,11 @@ class SearchGraph:
     W: np.ndarray
     ell: np.ndarray
     goal: int | None = None
-    blocked: np.ndarray | None = None
-    adjacency: dict | None = None
+    blocked: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    adjacency: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        if self.adjacency is None:
-            self.adjacency = {}
-        if self.blocked is None:
+        if len(self.blocked) == 0:  # none given: nothing known to collide
             self.blocked = np.zeros(len(self.W), dtype=bool)
         self.N, self.T = self.ell.shape
         self.n_roadmap_edges = len(self.ends)
@@ -195,7 +193,7 @@ def astar(g: SearchGraph, trans: np.ndarray, H: np.ndarray, source: int, t0: int
     heap = [(h0, 0.0, start)]
     expanded = 0
     while heap:
-        f, neg_g, node = heapq.heappop(heap)
+        _f, neg_g, node = heapq.heappop(heap)
         if closed[node]:
             continue
         closed[node] = True

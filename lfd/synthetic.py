@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from lfd.demos import DemoSet, Demonstration
+from lfd.demos import Demonstration, DemoSet
 from lfd.robots import BAXTER_LEFT
 
 __all__ = ["SyntheticTruth", "make_synthetic", "random_rotation"]
@@ -79,7 +79,7 @@ def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5,
     """
     if dt is None:
         dt = task.dt if task is not None else 0.1
-    if isinstance(dt, bool) or not (isinstance(dt, numbers.Real) and math.isfinite(dt) and dt > 0):
+    if isinstance(dt, bool) or not (isinstance(dt, numbers.Real) and math.isfinite(dt) and float(dt) > 0):
         raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
     rng = np.random.default_rng(seed)
     T = time_steps
@@ -109,7 +109,10 @@ def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5,
         L = lm[true_landmark]
         targets[rel] = x[rel] @ L[:3, :3].T + L[:3, 3]
         q_nom = q_nom_steps[align] + demo_spread * rng.normal(size=7) + 0.02 * rng.normal(size=(len(align), 7))
-        lms.append(lm), aligns.append(align), all_targets.append(targets), all_nom.append(q_nom)
+        lms.append(lm)
+        aligns.append(align)
+        all_targets.append(targets)
+        all_nom.append(q_nom)
     q_nom = torch.as_tensor(np.concatenate(all_nom))
     q, err = _ik(kin, q_nom, q_nom, torch.as_tensor(np.concatenate(all_targets)), tool)
     if float(err.max()) > 2e-3:

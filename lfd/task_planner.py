@@ -53,8 +53,15 @@ from lfd.stepcost import ModelStepCost
 
 TASK_STEP_SD = 0.05  # m: a step whose tool-point sd (largest axis) is below this is task-relevant
 
-__all__ = ["TaskPlannerSettings", "TaskPlanner", "biased_configurations", "chain_edges",
-           "project_to_model", "default_vertices", "can_bypass"]
+__all__ = [
+    "TaskPlanner",
+    "TaskPlannerSettings",
+    "biased_configurations",
+    "can_bypass",
+    "chain_edges",
+    "default_vertices",
+    "project_to_model",
+]
 
 DEFAULT_VERTICES, DEFAULT_VERTICES_STEPS = 1000, 24  # roadmap size for a model of this many steps
 
@@ -273,6 +280,7 @@ class TaskPlanner:
             self.growth_pending = True
             if grow:
                 self.grow()
+        assert self.planner is not None  # built above
         self.planner.update_landmarks(lm)
 
     def _invalidate_moved(self, names: list[str], poses: np.ndarray) -> None:
@@ -360,19 +368,20 @@ class TaskPlanner:
 
     def _grow_round(self, g: _Growth) -> None:
         """Run ``g``'s next round: sample, add the free vertices and their chain edges."""
+        rm, lm = self.roadmap, self._landmarks
+        assert rm is not None and lm is not None  # growth runs on a built roadmap
         i = g.done
         m, spread, free_posture = g.rounds[i]
         g.done += 1
-        Q, valid, steps, reached = biased_configurations(self.model, self._landmarks, m, self._gen,
-                                                         posture_spread=spread,
-                                                         batch_collision_fn=self.roadmap.in_collision,
+        Q, valid, steps, reached = biased_configurations(self.model, lm, m, self._gen, posture_spread=spread,
+                                                         batch_collision_fn=rm.in_collision,
                                                          free_posture=free_posture)
         g.reached |= reached.reshape(-1, steps).any(0)
         free = valid.copy()
-        free[valid] = ~self.roadmap.in_collision(Q[valid])
+        free[valid] = ~rm.in_collision(Q[valid])
         ids = np.full(len(Q), -1)
-        ids[free] = self.roadmap.add_vertices(Q[free], check=False)
-        self.roadmap.add_edges(ids[chain_edges(free, steps)])
+        ids[free] = rm.add_vertices(Q[free], check=False)
+        rm.add_edges(ids[chain_edges(free, steps)])
         g.per_step += free.reshape(-1, steps).sum(0)
         self.stats["vertices_added"] += int(free.sum())
         if i >= 2:
@@ -382,6 +391,7 @@ class TaskPlanner:
         """The growth the landmarks at ``pos (Z, 3)`` need, or None when the roadmap was grown near
         there already or is full (then the verdict is settled here)."""
         s = self.settings
+        assert self.roadmap is not None and self._landmarks is not None  # growth runs on a built roadmap
         room = (s.max_vertices or 3 * self.n_vertices) - self.roadmap.n
         dist = [np.abs(pos - g).max() for g, _ in self._grown_for]
         nearest = int(np.argmin(dist))
@@ -404,6 +414,7 @@ class TaskPlanner:
                                      self.segment_fn, batch_collision_fn=self.batch_collision_fn,
                                      settings=s.roadmap)
         self.stats["vertices_added"] = self.roadmap.n
+        assert self._landmarks is not None  # set by update_landmarks before the build
         pos = self._landmarks[:, :3, 3].cpu().numpy()
         verdict = np.zeros(0, dtype=int)
         if n_bias:

@@ -14,7 +14,7 @@ import numbers
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-__all__ = ["TaskSpec", "POWDER", "POUR", "task_from_name", "TASKS", "check_point", "check_stride", "check_whole"]
+__all__ = ["POUR", "POWDER", "TASKS", "TaskSpec", "check_point", "check_stride", "check_whole", "task_from_name"]
 
 
 def check_whole(value, what: str, minimum: int = 1) -> int:
@@ -32,7 +32,7 @@ def check_point(value, what: str) -> tuple[float, float, float]:
             or not all(isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
                        for x in value):
         raise ValueError(f"{what} needs 3 finite numbers (metres), got {value!r}")
-    return tuple(float(x) for x in value)
+    return (float(value[0]), float(value[1]), float(value[2]))
 
 
 def check_stride(value, what: str) -> int:
@@ -86,10 +86,10 @@ class TaskSpec:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "TaskSpec":
+    def from_dict(cls, d: dict) -> TaskSpec:
         """The task of ``to_dict``'s dict (``task.json``); ``ValueError`` naming the bad entry."""
         if not isinstance(d, dict):
-            raise ValueError(f"a task is a JSON object, got {type(d).__name__}")
+            raise ValueError(f"a task is a JSON object, got {type(d).__name__}")  # noqa: TRY004 (bad input: a user error)
         if "name" not in d or "dt" not in d:
             raise ValueError(f"a task needs 'name' and 'dt', got keys {sorted(d)}")
         point = d.get("manual_tool_point", (0.0, 0.0, 0.0))
@@ -102,7 +102,7 @@ class TaskSpec:
         Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
 
     @classmethod
-    def load(cls, path: str | Path) -> "TaskSpec":
+    def load(cls, path: str | Path) -> TaskSpec:
         return cls.from_dict(json.loads(Path(path).read_text()))
 
 

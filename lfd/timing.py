@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-__all__ = ["PROFILES", "expected_sojourn", "step_clock", "profile_at", "plan_segments"]
+__all__ = ["PROFILES", "expected_sojourn", "plan_segments", "profile_at", "step_clock"]
 
 PROFILES = ("min-jerk", "linear")
 # min-jerk s(a) = 10a^3 - 15a^4 + 6a^5 on a in [0, 1]: peak ds/da = 15/8, peak d2s/da2 = 10/sqrt(3)

@@ -38,8 +38,19 @@ import numpy as np
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
 
-__all__ = ["PROG", "TOOL_CHOICES", "ENV_CHOICES", "build_parser", "parse_args", "check_device", "main", "cli",
-           "default_out", "default_demos", "Logger"]
+__all__ = [
+    "ENV_CHOICES",
+    "PROG",
+    "TOOL_CHOICES",
+    "Logger",
+    "build_parser",
+    "check_device",
+    "cli",
+    "default_demos",
+    "default_out",
+    "main",
+    "parse_args",
+]
 
 PROG = "lfd-train"
 
@@ -296,11 +307,17 @@ def cli() -> None:
 
 
 def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
-    import torch
 
-    from lfd.checkpoint import (CheckpointError, atomic_write_text, checkpoint_path,
-                                config_record, demos_fingerprint, load_checkpoint, remove_checkpoint,
-                                save_checkpoint)
+    from lfd.checkpoint import (
+        CheckpointError,
+        atomic_write_text,
+        checkpoint_path,
+        config_record,
+        demos_fingerprint,
+        load_checkpoint,
+        remove_checkpoint,
+        save_checkpoint,
+    )
     from lfd.demos import load_demos
     from lfd.kinematics import KinematicModel
     from lfd.learn import FitConfig, fit

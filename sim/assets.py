@@ -17,9 +17,22 @@ import pybullet as p
 
 from sim import layout as L
 
-__all__ = ["tool_boxes", "tool_link_urdf", "build_floor", "build_table", "build_bowl", "build_source",
-           "build_paper_towels", "build_lamp_shade", "build_vase", "build_books",
-           "build_small_item", "build_marker", "BUILDERS", "COLORS"]
+__all__ = [
+    "BUILDERS",
+    "COLORS",
+    "build_books",
+    "build_bowl",
+    "build_floor",
+    "build_lamp_shade",
+    "build_marker",
+    "build_paper_towels",
+    "build_small_item",
+    "build_source",
+    "build_table",
+    "build_vase",
+    "tool_boxes",
+    "tool_link_urdf",
+]
 
 COLORS = {
     "table": (0.55, 0.40, 0.25, 1.0), "bowl": (0.1, 0.7, 0.2, 1.0), "source": (0.95, 0.85, 0.1, 1.0),

@@ -54,14 +54,14 @@ import math
 import re
 import tempfile
 import weakref
-from pathlib import Path
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
+from pathlib import Path
 
 import numpy as np
 import pybullet as p
 
-__all__ = ["CollisionFns", "make_collision_fns", "sweep_margin", "bisection_order", "joint_levers", "ALWAYS_TOUCHING"]
+__all__ = ["ALWAYS_TOUCHING", "CollisionFns", "bisection_order", "joint_levers", "make_collision_fns", "sweep_margin"]
 
 # The arm and the tool keep this clearance (m) from the table and the obstacles (exact distances,
 # ``_too_close``).
@@ -252,7 +252,7 @@ def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
     shadow = p.connect(p.DIRECT)
     with tempfile.TemporaryDirectory() as tmp:
         urdf = _patched_urdf(world.spec, world.task, Path(tmp))
-        urdf.write_text(re.sub(r"<visual>.*?</visual>", "", urdf.read_text(), flags=re.S))
+        urdf.write_text(re.sub(r"<visual>.*?</visual>", "", urdf.read_text(), flags=re.DOTALL))
         with quiet_stdio():
             robot = p.loadURDF(str(urdf), (0, 0, 0), (0, 0, 0, 1), useFixedBase=True,
                                flags=p.URDF_USE_SELF_COLLISION, physicsClientId=shadow)

@@ -28,8 +28,17 @@ from scipy.interpolate import PchipInterpolator
 
 from sim import layout as L
 
-__all__ = ["TASK_POINTS", "SHOULDER_XY", "DemoPath", "rotation_level", "tool_rotation", "draw_path",
-           "bowl_frame_path", "dump_pose", "DUMP_NOMINAL"]
+__all__ = [
+    "DUMP_NOMINAL",
+    "SHOULDER_XY",
+    "TASK_POINTS",
+    "DemoPath",
+    "bowl_frame_path",
+    "draw_path",
+    "dump_pose",
+    "rotation_level",
+    "tool_rotation",
+]
 
 # Default hidden task points, metres in the gripper frame (see sim.layout for the tools):
 # powder -- the centre of the scoop just above its floor, on the spoon's long axis, i.e. the
@@ -148,7 +157,7 @@ def _keyframes(task: str, bowl_xy, start: np.ndarray, rng, tool_point) -> tuple[
     top = L.TABLE_TOP_Z
     yaw = _facing(bowl_xy) + np.deg2rad(rng.uniform(-10, 10))  # facing differs by some degrees
     tilt = np.deg2rad(rng.uniform(-8, 8))                      # and so does the tilt
-    x0, y0, z0, yaw0 = start
+    x0, y0, _z0, yaw0 = start
     back = np.r_[SHOULDER_XY[0] - x0, SHOULDER_XY[1] - y0, 0.0]
     back /= np.linalg.norm(back)  # lifting out of the source, slightly outwards
     lift = start[:3] - back * rng.uniform(0.0, 0.04) + [rng.normal(0, 0.01), rng.normal(0, 0.01),

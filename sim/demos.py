@@ -44,8 +44,18 @@ from lfd.tasks import task_from_name
 from sim import layout as L
 from sim.demo_paths import TASK_POINTS, DemoPath, bowl_frame_path, draw_path
 
-__all__ = ["generate", "bowl_positions", "DemoAttempt", "track_path", "replay", "plot_demos", "main",
-           "MIN_IN_BOWL", "PLACEMENTS", "DEFAULT_PLACEMENT"]
+__all__ = [
+    "DEFAULT_PLACEMENT",
+    "MIN_IN_BOWL",
+    "PLACEMENTS",
+    "DemoAttempt",
+    "bowl_positions",
+    "generate",
+    "main",
+    "plot_demos",
+    "replay",
+    "track_path",
+]
 
 MIN_IN_BOWL = 0.9
 MAX_ATTEMPTS_PER_DEMO = 40

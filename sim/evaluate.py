@@ -30,7 +30,7 @@ from lfd.train_cli import main as train_main
 from sim.execute import parse_latency
 from sim.scenarios import Scenario, draw_scenarios
 
-__all__ = ["Variant", "VARIANTS", "EvalSettings", "TrainingFailed", "run_one", "evaluate", "format_table"]
+__all__ = ["VARIANTS", "EvalSettings", "TrainingFailed", "Variant", "evaluate", "format_table", "run_one"]
 
 # how the executor times a plan (``sim.execute.ExecSettings.pace``), logged with every run: runs
 # logged without it were paced per visited step (before ``lfd.timing.step_clock``) and are redone
@@ -255,9 +255,9 @@ def format_table(results: dict, task: str, latency: str | None = None) -> str:
     ``latency``: the evaluation's latency mode, named under the table."""
     head = f"{'Tool landmark':<14} {'Environment landmark':<21} {'Success':>8} {'Learning':>9} " \
            f"{'Plan (init)':>12} {'Replan':>9} {'Reaction':>9}"
-    lines = [f"{task}: success rate over {max((v['n_scenarios'] for v in results.values()), default=0)} "
-             f"scenarios", head, "-" * len(head)]
-    for name, v in results.items():
+    n = max((v['n_scenarios'] for v in results.values()), default=0)
+    lines = [f"{task}: success rate over {n} scenarios", head, "-" * len(head)]
+    for v in results.values():
         lines.append(f"{v['tool_landmark']:<14} {v['env_landmark']:<21} {v['success_rate']:>8.0%} "
                      f"{v['learning_time_s']:>8.1f}s {_ms(v['initial_ms']):>12} {_ms(v['replan_ms']):>9} "
                      f"{_ms(v.get('reaction_ms')):>9}")
@@ -377,7 +377,7 @@ def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int | None,
         report["roadmap_build_s"] = time.perf_counter() - tic
         res = planner.plan(L.HOME_Q, 0)
         report.update(status=res.status, message=res.message, cost=res.cost,
-                      waypoints=int(len(res.configurations)), latency_ms=res.latency_s * 1e3,
+                      waypoints=len(res.configurations), latency_ms=res.latency_s * 1e3,
                       edges_evaluated=res.n_edges_evaluated, roadmap_vertices=planner.roadmap.n)
         if execute and res.ok:
             run = execute_plan(world, planner, scenario, ExecSettings(latency=latency))

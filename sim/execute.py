@@ -45,7 +45,7 @@ import pybullet as p
 from lfd.timing import PROFILES, plan_segments, profile_at, step_clock
 from sim import layout as L
 
-__all__ = ["ExecSettings", "PACES", "LATENCIES", "RunResult", "execute_plan", "parse_latency"]
+__all__ = ["LATENCIES", "PACES", "ExecSettings", "RunResult", "execute_plan", "parse_latency"]
 
 PACES = ("demonstrated", "fastest")
 LATENCIES = ("measured", "none")

@@ -16,7 +16,7 @@ from lfd.cli import UsageError
 from lfd.model import TaskModel
 from lfd.robots import RobotSpec
 
-__all__ = ["scenario_provides", "model_mismatch", "load_checked_model", "check_models_for_task"]
+__all__ = ["check_models_for_task", "load_checked_model", "model_mismatch", "scenario_provides"]
 
 
 def scenario_provides(task: str) -> tuple[tuple[str, ...], RobotSpec]:

@@ -15,8 +15,15 @@ import pybullet as p
 
 from sim import layout as L
 
-__all__ = ["ParticleSet", "cavity_points", "spawn_particles", "particle_positions", "in_bowl_mask",
-           "in_tool_mask", "remove_particles"]
+__all__ = [
+    "ParticleSet",
+    "cavity_points",
+    "in_bowl_mask",
+    "in_tool_mask",
+    "particle_positions",
+    "remove_particles",
+    "spawn_particles",
+]
 
 # Contact properties: powder grains do not roll away; liquid drops slide freely.
 _MATERIAL = {"powder": dict(lateralFriction=0.6, rollingFriction=0.001, spinningFriction=0.001, restitution=0.0),

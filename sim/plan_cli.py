@@ -18,7 +18,7 @@ from pathlib import Path
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
 from sim.scenarios import MAX_BASE_SEED, MAX_SCENARIO_SEED
 
-__all__ = ["PROG", "build_parser", "parse", "main", "cli"]
+__all__ = ["PROG", "build_parser", "cli", "main", "parse"]
 
 PROG = "lfd-plan"
 

@@ -42,8 +42,20 @@ SEED_STRIDE = 100_003  # scenario i of the set with base seed S has seed S * SEE
 MAX_SCENARIO_SEED = 2**63
 MAX_BASE_SEED = MAX_SCENARIO_SEED // SEED_STRIDE - 1
 
-__all__ = ["Scenario", "draw_scenario", "draw_scenarios", "with_bowl_move", "MIN_BOWL_SOURCE", "CLEARANCE",
-           "SEED_STRIDE", "MAX_SCENARIO_SEED", "MAX_BASE_SEED", "ITEM_RADIUS", "FOOTPRINT", "SOURCE_RADIUS"]
+__all__ = [
+    "CLEARANCE",
+    "FOOTPRINT",
+    "ITEM_RADIUS",
+    "MAX_BASE_SEED",
+    "MAX_SCENARIO_SEED",
+    "MIN_BOWL_SOURCE",
+    "SEED_STRIDE",
+    "SOURCE_RADIUS",
+    "Scenario",
+    "draw_scenario",
+    "draw_scenarios",
+    "with_bowl_move",
+]
 
 MIN_BOWL_SOURCE = 0.30       # m, bowl centre to source container centre
 MIN_MOVE = 0.20              # m, how far the bowl moves in the powder closed-loop test

@@ -24,11 +24,11 @@ import numpy as np
 import pybullet as p
 
 from lfd.robots import BAXTER_LEFT, RobotSpec, example_robot_data_share, resolve_urdf
-from sim import assets, layout as L, quiet_stdio
-from sim.particles import (ParticleSet, in_bowl_mask, in_tool_mask, particle_positions,
-                           remove_particles, spawn_particles)
+from sim import assets, quiet_stdio
+from sim import layout as L
+from sim.particles import ParticleSet, in_bowl_mask, in_tool_mask, particle_positions, remove_particles, spawn_particles
 
-__all__ = ["World", "pose_to_matrix", "main"]
+__all__ = ["World", "main", "pose_to_matrix"]
 
 TASKS = ("powder", "pour")
 LANDMARKS = {"powder": ("bowl", "marker_1", "marker_2", "marker_3", "marker_4"),
