@@ -18,6 +18,8 @@ import os
 import sys
 from pathlib import Path
 
+from lfd.errors import UserInputError
+
 __all__ = [
     "EXIT_BROKEN_PIPE",
     "USER_ERRORS",
@@ -32,21 +34,15 @@ __all__ = [
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE: what a shell reports for a tool killed by a closed pipe
 
 
-class UsageError(ValueError):
+class UsageError(UserInputError):
     """Bad input that the user can fix; the message says what and what would be right."""
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:
-    from lfd.demos import DemoFormatError
-    from lfd.kinematics import KinematicsError
-    errors: list[type[BaseException]] = [UsageError, DemoFormatError, KinematicsError,
-                                         FileNotFoundError, NotADirectoryError, PermissionError]
-    try:
-        from lfd.model import ModelFormatError
-        errors.append(ModelFormatError)
-    except ImportError:
-        pass
-    return tuple(errors)
+    """The errors a command reports as one line and exit status 2: every ``UserInputError``
+    (bad demonstrations, a bad robot description or model file, a bad argument) and a missing or
+    unreadable path."""
+    return (UserInputError, FileNotFoundError, NotADirectoryError, PermissionError)
 
 
 USER_ERRORS = _user_errors

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lfd.errors import UserInputError
 from lfd.robots import RobotSpec
 from lfd.se3 import rigid_errors
 from lfd.tasks import TaskSpec, check_point, check_stride
@@ -54,7 +55,7 @@ LIMIT_TOLERANCE = 0.02  # rad: recorded joints may sit this far outside the URDF
 RIGID_TOLERANCE = 1e-4  # |R^T R - I|, |det R - 1| and bottom-row error allowed in a landmark pose
 
 
-class DemoFormatError(ValueError):
+class DemoFormatError(UserInputError):
     """A demonstration set that cannot be used; the message says what, where, and what is expected."""
 
 

@@ -17,12 +17,13 @@ from pathlib import Path
 
 import torch
 
+from lfd.errors import UserInputError
 from lfd.robots import BAXTER_LEFT, RobotSpec, resolve_urdf
 
 __all__ = ["KinematicModel", "KinematicsError"]
 
 
-class KinematicsError(ValueError):
+class KinematicsError(UserInputError):
     """A robot description or an input to the kinematics that cannot be used."""
 
 

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import torch
 
+from lfd.errors import UserInputError
 from lfd.robots import RobotSpec
 from lfd.tasks import TaskSpec
 
@@ -48,7 +49,7 @@ OFFSETS = (0, 1, 2)
 FORMAT = "lfd-task-model/1"
 
 
-class ModelFormatError(ValueError):
+class ModelFormatError(UserInputError):
     """A model folder that is not an lfd task model (or a damaged one)."""
 
 

@@ -29,7 +29,7 @@ import torch
 
 from lfd.dtw import alignment_step_counts
 
-__all__ = ["estimate_log_trans", "floor_prior", "uniform_log_trans", "volume_prior"]
+__all__ = ["estimate_log_trans", "floor_prior", "volume_prior"]
 
 
 def floor_prior(sigma_inv: torch.Tensor, floor: torch.Tensor, nu: float) -> torch.Tensor:
@@ -45,14 +45,6 @@ def volume_prior(A: torch.Tensor, counts: torch.Tensor) -> torch.Tensor:
 def _permitted(time_steps: int, offsets) -> np.ndarray:
     t = np.arange(time_steps)[:, None]
     return t + np.asarray(offsets)[None, :] <= time_steps - 1  # (T, K)
-
-
-def uniform_log_trans(time_steps: int, offsets, dtype=torch.float64, device="cpu") -> torch.Tensor:
-    """Every permitted transition equally likely: ``(T, K)``."""
-    ok = _permitted(time_steps, offsets)
-    p = ok / ok.sum(1, keepdims=True)
-    with np.errstate(divide="ignore"):
-        return torch.as_tensor(np.log(p), dtype=dtype, device=device)
 
 
 def estimate_log_trans(alignments, time_steps: int, offsets, floor: float = 0.01,

@@ -86,22 +86,3 @@ def resolve_urdf(urdf: str) -> Path:
     if not path.is_file():
         raise FileNotFoundError(f"URDF file not found: {path}")
     return path
-
-
-def package_root_for(urdf_path: Path) -> Path:
-    """The folder that ``package://`` URIs in ``urdf_path`` are relative to.
-
-    For example-robot-data this is the ``share`` folder; for other URDFs the
-    parent of the folder that holds the URDF's package is guessed by walking up
-    until the first path component of a ``package://`` URI is found.
-    """
-    text = urdf_path.read_text(errors="replace")
-    marker = "package://"
-    i = text.find(marker)
-    if i < 0:
-        return urdf_path.parent
-    pkg = text[i + len(marker):].split("/", 1)[0]
-    for parent in urdf_path.resolve().parents:
-        if (parent / pkg).is_dir():
-            return parent
-    return urdf_path.parent

@@ -1,31 +1,10 @@
-"""Small SE(3) helpers on homogeneous 4x4 matrices (numpy and torch alike)."""
+"""Small SE(3) helpers on homogeneous 4x4 matrices (numpy)."""
 
 from __future__ import annotations
 
 import numpy as np
-import torch
 
-__all__ = ["invert", "rigid_errors"]
-
-
-def invert(T):
-    """Inverse of rigid transforms ``T: (..., 4, 4)`` (numpy array or torch tensor)."""
-    if torch.is_tensor(T):
-        R = T[..., :3, :3]
-        Rt = R.transpose(-1, -2)
-        out = torch.zeros_like(T)
-        out[..., :3, :3] = Rt
-        out[..., :3, 3] = -(Rt @ T[..., :3, 3:4])[..., 0]
-        out[..., 3, 3] = 1
-        return out
-    T = np.asarray(T)
-    R = T[..., :3, :3]
-    Rt = np.swapaxes(R, -1, -2)
-    out = np.zeros_like(T)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -(Rt @ T[..., :3, 3:4])[..., 0]
-    out[..., 3, 3] = 1
-    return out
+__all__ = ["rigid_errors"]
 
 
 def rigid_errors(T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
