@@ -45,7 +45,7 @@ setup(
         "numpy>=1.24",
         "scipy>=1.10",
         "networkx>=3.0",
-        "example-robot-data>=4.0",  # the Baxter URDF and meshes (lfd.robots.BAXTER_LEFT)
+        "example-robot-data>=4.0",  # the Baxter URDF and meshes (lfd.robot.robots.BAXTER_LEFT)
     ],
     extras_require={
         # The simulator, TensorBoard, plots and videos: what `make` installs.

@@ -1,9 +1,9 @@
 """Learning benchmarks.
 
-``python benchmarks/learning.py [--runs N] [--restarts R]``: median learning time (``lfd.learn.fit``
+``python benchmarks/learning.py [--runs N] [--restarts R]``: median learning time (``lfd.learning.learn.fit``
 with default settings) for both tasks on ``runs/demos/<task>``; demonstrations are generated
 with ``sim.demos.generate`` when absent. When the simulator cannot generate them, a synthetic
-stand-in of the same size (11 demonstrations of ~15 s at the task's rate, Z=5, lfd.synthetic)
+stand-in of the same size (11 demonstrations of ~15 s at the task's rate, Z=5, lfd.learning.synthetic)
 is timed instead and marked ``"source": "synthetic"``. Writes ``runs/bench/learning.json``.
 
 ``python benchmarks/learning.py --compare``: accuracy of the ``full`` and ``block`` covariance
@@ -27,14 +27,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir  # noqa: E402
-from lfd.kinematics import KinematicModel  # noqa: E402
-from lfd.learn import FitConfig, fit  # noqa: E402
-from lfd.synthetic import make_synthetic  # noqa: E402
-from lfd.tasks import task_from_name  # noqa: E402
+from lfd.robot.kinematics import KinematicModel  # noqa: E402
+from lfd.learning.learn import FitConfig, fit  # noqa: E402
+from lfd.learning.synthetic import make_synthetic  # noqa: E402
+from lfd.learning.tasks import task_from_name  # noqa: E402
 
 
 def task_demos(task: str, kin):
-    from lfd.demos import load_demos
+    from lfd.learning.demos import load_demos
     folder = ROOT / "runs" / "demos" / task
     if not any(folder.glob("*.npz")):
         try:

@@ -35,9 +35,9 @@ import numpy as np
 import torch
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
-from lfd.planner import ClosedLoopPlanner, PlannerSettings
-from lfd.roadmap import Roadmap, mixed_samples
-from lfd.stepcost import CallableStepCost
+from lfd.planning.planner import ClosedLoopPlanner, PlannerSettings
+from lfd.planning.roadmap import Roadmap, mixed_samples
+from lfd.planning.stepcost import CallableStepCost
 
 ROOT = Path(__file__).resolve().parent.parent
 LOWER = np.array([-1.70, -2.147, -3.05, -0.05, -3.059, -1.571, -3.059])

@@ -55,7 +55,7 @@ def _summary(values) -> dict:
 
 def bench_scene(model, task: str, scenario) -> dict:
     """One scene: build, initial plan, bowl move and reaction, growth and improved plan."""
-    from lfd.task_planner import TaskPlanner
+    from lfd.planning.task_planner import TaskPlanner
     from sim import layout as L
     from sim.collision import make_collision_fns
     from sim.evaluate import planner_settings
@@ -110,8 +110,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.scenes < 1:
         raise UsageError(f"--scenes must be at least 1, got {args.scenes}")
-    from lfd.kinematics import KinematicModel
-    from lfd.model import TaskModel
+    from lfd.robot.kinematics import KinematicModel
+    from lfd.learning.model import TaskModel
     from sim.evaluate import VARIANTS, ensure_model
     from sim.reach import DumpReach
     from sim.scenarios import draw_scenarios, with_bowl_move

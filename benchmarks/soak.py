@@ -54,8 +54,8 @@ def main(argv=None) -> int:
 
     import torch
 
-    from lfd.kinematics import KinematicModel
-    from lfd.task_planner import TaskPlanner, TaskPlannerSettings
+    from lfd.robot.kinematics import KinematicModel
+    from lfd.planning.task_planner import TaskPlanner, TaskPlannerSettings
     from sim import layout as L
     from sim.collision import make_collision_fns
     from sim.model_check import load_checked_model

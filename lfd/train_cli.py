@@ -1,12 +1,12 @@
 """Learn a task model from demonstrations: ``lfd-train --task powder|pour [...]`` (or ``python train.py``).
 
-Loads (or, with the simulator installed, generates) demonstrations, calls ``lfd.learn.fit``, and
+Loads (or, with the simulator installed, generates) demonstrations, calls ``lfd.learning.learn.fit``, and
 writes ``model.pt``, ``config.json``, ``summary.json`` and TensorBoard logs into ``--out``.
 Relative paths and the defaults (``./runs/<task>``, ``./runs/demos/<task>``) are taken from the
 current working directory.
 
 Interruptions: after every restart the fit's progress is checkpointed into ``--out``
-(``checkpoint.json`` + ``checkpoint_rNNN.pt``, see ``lfd.checkpoint``). Ctrl-C (SIGINT) or
+(``checkpoint.json`` + ``checkpoint_rNNN.pt``, see ``lfd.learning.checkpoint``). Ctrl-C (SIGINT) or
 SIGTERM stops the run with one line naming the checkpoint and the command that resumes it,
 exit status 130 / 143; ``--resume`` carries on (same options and demonstrations, or it is
 refused) and ends with the model an uninterrupted run would have learned. Every file is
@@ -55,7 +55,7 @@ __all__ = [
 PROG = "lfd-train"
 
 # The paper's names of the landmark choices (its tables' rows; ``plan.py --variants`` combines them
-# as tool+env), mapped to ``lfd.learn.FitConfig``'s values, which are accepted as aliases.
+# as tool+env), mapped to ``lfd.learning.learn.FitConfig``'s values, which are accepted as aliases.
 TOOL_CHOICES = {"learned": "learn", "manual": "tip", "arbitrary": "gripper",
                 "learn": "learn", "tip": "tip", "gripper": "gripper"}
 ENV_CHOICES = {"learned": "learn", "manual": "bowl", "learn": "learn", "bowl": "bowl"}
@@ -115,7 +115,7 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                    help="environment landmark: learned weights over the sensed landmarks, or manual (the "
                         "task's reference landmark, the bowl); learn, bowl are accepted as the same")
     p.add_argument("--restarts", type=int, default=None, metavar="N",
-                   help="EM restarts from different starts (default: lfd.learn.FitConfig's, 4)")
+                   help="EM restarts from different starts (default: lfd.learning.learn.FitConfig's, 4)")
     p.add_argument("--time-steps", type=int, default=None, metavar="T",
                    help="time steps of the model (default: the task.json's, 24 without one)")
     p.add_argument("--subsample", type=int, default=None, metavar="K",
@@ -128,20 +128,20 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     p.add_argument("--covariance", default=None, choices=("full", "block"),
                    help="per-step covariance: block (joints independent of the task features) or full, "
                         "the paper's (default: block)")
-    p.add_argument("--init", default=None, choices=("reference", "random", "linear"),  # lfd.learn.INITS
+    p.add_argument("--init", default=None, choices=("reference", "random", "linear"),  # lfd.learning.learn.INITS
                    help="restarts' first alignments: DTW onto a reference demonstration (default: reference), "
                         "independent random warps (the paper's) or the uniform time warp")
     p.add_argument("--band", default=None, metavar="N|none",
                    help="keep every alignment within N steps of its restart's start (default: 1); "
                         "'none' lets the DTW move freely, as in the paper")
     p.add_argument("--offsets", type=int, nargs="+", default=None, metavar="K",
-                   help="permitted time-step transitions (default: lfd.learn.FitConfig's, 0 1 2)")
+                   help="permitted time-step transitions (default: lfd.learning.learn.FitConfig's, 0 1 2)")
     p.add_argument("--floor-task", type=float, default=None, metavar="M",
                    help="variance floor of the tool-point features, a standard deviation in metres "
-                        "(lfd.priors; default: lfd.learn.FitConfig's, 0.001)")
+                        "(lfd.learning.priors; default: lfd.learning.learn.FitConfig's, 0.001)")
     p.add_argument("--floor-joint", type=float, default=None, metavar="RAD",
                    help="variance floor of the joint features, a standard deviation in radians "
-                        "(default: lfd.learn.FitConfig's, 0.001)")
+                        "(default: lfd.learning.learn.FitConfig's, 0.001)")
     p.add_argument("--resume", action="store_true",
                    help="continue from the checkpoint in --out (same options and demonstrations)")
     p.add_argument("--quiet", action="store_true",
@@ -272,7 +272,7 @@ def main(argv=None, prog: str = PROG) -> int:
     """``lfd-train`` / ``python train.py``: 0 on success, 130 / 143 when interrupted; raises
     ``UsageError`` (and the other ``lfd.cli.USER_ERRORS``) on bad input."""
     args = parse_args(argv, prog=prog)
-    from lfd.checkpoint import Interrupted, InterruptGuard, checkpoint_path
+    from lfd.learning.checkpoint import Interrupted, InterruptGuard, checkpoint_path
 
     out_arg = args.out or default_out(args.task)
     created = _first_missing(out_arg)
@@ -308,7 +308,7 @@ def cli() -> None:
 
 def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
 
-    from lfd.checkpoint import (
+    from lfd.learning.checkpoint import (
         CheckpointError,
         atomic_write_text,
         checkpoint_path,
@@ -318,9 +318,9 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
         remove_checkpoint,
         save_checkpoint,
     )
-    from lfd.demos import load_demos
-    from lfd.kinematics import KinematicModel
-    from lfd.learn import FitConfig, fit
+    from lfd.learning.demos import load_demos
+    from lfd.learning.learn import FitConfig, fit
+    from lfd.robot.kinematics import KinematicModel
 
     resumed = None
     if args.resume:
@@ -351,7 +351,7 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
     kw["subsample"] = args.subsample or (ds.task.subsample if ds.task else 1)
     if kw["subsample"] > 1 and ds.task is None:
         raise UsageError(f"--subsample {kw['subsample']}: {demos_dir} has no task.json, where the model's "
-                         f"sampling interval is kept; add one (lfd.tasks.TaskSpec) or leave --subsample out")
+                         f"sampling interval is kept; add one (lfd.learning.tasks.TaskSpec) or leave --subsample out")
     try:
         cfg = FitConfig(**kw)
     except ValueError as e:

@@ -341,7 +341,7 @@ def sweep_margin(task: str, tool_point) -> float:
     """Metres around the arm's polyline of joint origins and the segment from the gripper to the
     model's tool point ``(3,)`` (gripper frame) within which the arm and the task's tool lie: the
     farthest tool-box corner from that segment, or the links' radius, whichever is larger. What
-    ``lfd.planner.PlannerSettings.sweep_margin`` needs for this robot and tool."""
+    ``lfd.planning.planner.PlannerSettings.sweep_margin`` needs for this robot and tool."""
     from sim import assets
 
     tool = np.asarray(tool_point, dtype=float).reshape(3)

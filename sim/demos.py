@@ -9,7 +9,7 @@ to the right; ``DEFAULT_PLACEMENT``). Per demonstration, 4 distractor landmarks 
 (powder: markers up to 0.3 m above the table; pour: scissors, spoon, vase, paper towels
 lifted up to 10 inches), each drawn again while the demonstrated motion would hit it (a person
 does not demonstrate through a vase); a hidden task point on the tool (``sim.demo_paths.TASK_POINTS`` or ``task_point``) follows a random path relative
-to the bowl (``sim.demo_paths.draw_path``); the arm follows it by IK (``lfd.ik``) seeded from
+to the bowl (``sim.demo_paths.draw_path``); the arm follows it by IK (``lfd.robot.ik``) seeded from
 the previous sample, with a per-demonstration null-space posture. A demonstration is kept
 only if every sample is within the joint limits, no joint exceeds its URDF velocity over one
 sampling interval, no configuration collides (self, table, containers, distractors), and its
@@ -36,11 +36,11 @@ import pybullet as p
 import torch
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
-from lfd.demos import Demonstration, save_demonstration
-from lfd.ik import IKConfig, solve_ik
-from lfd.kinematics import KinematicModel
-from lfd.robots import BAXTER_LEFT
-from lfd.tasks import task_from_name
+from lfd.learning.demos import Demonstration, save_demonstration
+from lfd.learning.tasks import task_from_name
+from lfd.robot.ik import IKConfig, solve_ik
+from lfd.robot.kinematics import KinematicModel
+from lfd.robot.robots import BAXTER_LEFT
 from sim import layout as L
 from sim.demo_paths import TASK_POINTS, DemoPath, bowl_frame_path, draw_path
 
@@ -260,7 +260,7 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
              keep_attempts: list | None = None, placement: str | None = None) -> list[Path]:
     """Generate ``n`` demonstrations of ``task`` into ``out_dir``; returns the ``.npz`` paths.
 
-    Writes ``demo_000.npz`` ... (``lfd.demos`` format), ``task.json`` and ``ground_truth.json``
+    Writes ``demo_000.npz`` ... (``lfd.learning.demos`` format), ``task.json`` and ``ground_truth.json``
     (``tool_point``, ``bowl_landmark``, ``task``, plus the bowl positions and durations).
     ``task_point``: (3,) metres in the gripper frame, default ``TASK_POINTS[task]``.
     ``keep_attempts``: a list that receives the kept ``DemoAttempt`` objects (for tests/plots).

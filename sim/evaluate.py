@@ -72,7 +72,7 @@ VARIANTS = (
 
 @dataclass(frozen=True)
 class EvalSettings:
-    """roadmap_size: PRM* vertices per scenario (None: ``lfd.task_planner.default_vertices`` of
+    """roadmap_size: PRM* vertices per scenario (None: ``lfd.planning.task_planner.default_vertices`` of
     each model's time steps); seed: base seed of the scenario set;
     n_scenarios; workers: processes; video: write a GIF of the first scenario per variant;
     latency: simulated time a plan costs (``sim.execute.ExecSettings.latency``: "measured",
@@ -94,8 +94,8 @@ class EvalSettings:
 def planner_settings(roadmap_size: int | None, seed: int, task: str, tool_point):
     """The ``TaskPlannerSettings`` of an evaluation run (and of ``plan.py``'s single plans): the
     sweep margin of the task's tool around the model's tool point (``sim.collision.sweep_margin``)."""
-    from lfd.planner import PlannerSettings
-    from lfd.task_planner import TaskPlannerSettings
+    from lfd.planning.planner import PlannerSettings
+    from lfd.planning.task_planner import TaskPlannerSettings
     from sim.collision import sweep_margin
     margin = sweep_margin(task, tool_point.detach().cpu().numpy())
     return TaskPlannerSettings(n_vertices=roadmap_size, seed=seed, planner=PlannerSettings(sweep_margin=margin))
@@ -144,9 +144,9 @@ def run_one(task: str, scenario: Scenario, variant: Variant, model_dir: str, roa
     """One scenario with one variant, in this process. Returns a JSON-ready dict."""
     import torch
 
-    from lfd.kinematics import KinematicModel
-    from lfd.model import TaskModel
-    from lfd.task_planner import TaskPlanner
+    from lfd.learning.model import TaskModel
+    from lfd.planning.task_planner import TaskPlanner
+    from lfd.robot.kinematics import KinematicModel
     from sim.collision import make_collision_fns
     from sim.execute import ExecSettings, execute_plan
     from sim.world import World
@@ -355,9 +355,9 @@ def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int | None,
 
     Returns ``(report, plan_result, model)``.
     """
-    from lfd.kinematics import KinematicModel
-    from lfd.model import TaskModel
-    from lfd.task_planner import TaskPlanner
+    from lfd.learning.model import TaskModel
+    from lfd.planning.task_planner import TaskPlanner
+    from lfd.robot.kinematics import KinematicModel
     from sim import layout as L
     from sim.collision import make_collision_fns
     from sim.execute import ExecSettings, execute_plan

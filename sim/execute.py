@@ -274,7 +274,7 @@ def _latency_s(mode, wall_s: float) -> float:
 
 def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = None,
                  q_start=None, frames: list | None = None) -> RunResult:
-    """Run the task closed-loop in ``world`` with ``planner`` (an ``lfd.task_planner.TaskPlanner``).
+    """Run the task closed-loop in ``world`` with ``planner`` (an ``lfd.planning.task_planner.TaskPlanner``).
 
     ``scenario`` (``sim.scenarios.Scenario``) supplies the mid-task bowl move; ``frames``, when a
     list, receives rendered RGB frames every ``settings.frame_every`` steps. The world runs on

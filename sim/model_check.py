@@ -13,8 +13,8 @@ import inspect
 from pathlib import Path
 
 from lfd.cli import UsageError
-from lfd.model import TaskModel
-from lfd.robots import RobotSpec
+from lfd.learning.model import TaskModel
+from lfd.robot.robots import RobotSpec
 
 __all__ = ["check_models_for_task", "load_checked_model", "model_mismatch", "scenario_provides"]
 
@@ -52,7 +52,7 @@ def load_checked_model(model_dir: str | Path, task: str | None = None,
     """Load the model in ``model_dir`` and check it fits the scenarios of ``task`` (default: the
     model's own task, powder when it names none); ``(model, task)``.
 
-    Raises ``UsageError`` (or ``lfd.model.ModelFormatError``) with a message that starts
+    Raises ``UsageError`` (or ``lfd.learning.model.ModelFormatError``) with a message that starts
     ``"{what} {model_dir}: "``.
     """
     model_dir = Path(model_dir)

@@ -6,7 +6,7 @@ necessary part of that question without any learned model: is there a collision-
 configuration that holds the tool the way the demonstrator holds it when dumping (powder) or
 pouring (liquid) over the bowl, facing the bowl from any bearing within ``yaw_span`` of the
 demonstrator's? The pose is the demonstrator's nominal one (``sim.demo_paths.dump_pose``); IK
-(``lfd.ik``) from ``n_seeds`` seeded starts, collision with the scene checked by
+(``lfd.robot.ik``) from ``n_seeds`` seeded starts, collision with the scene checked by
 ``sim.collision`` including the clearance the planner keeps. Deterministic for given inputs.
 
 Used by ``sim.scenarios`` to redraw scenarios in which an obstacle hangs where every dumping
@@ -29,7 +29,7 @@ class DumpReach:
     """
 
     def __init__(self, task: str, n_seeds: int = 64, yaw_span_deg: float = 30.0, seed: int = 0):
-        from lfd.kinematics import KinematicModel
+        from lfd.robot.kinematics import KinematicModel
         from sim.collision import make_collision_fns
         from sim.world import World
 
@@ -63,7 +63,7 @@ class DumpReach:
         return not self.fns.collision_fn(np.asarray(L.HOME_Q, dtype=float))
 
     def __call__(self, placements: dict, bowl_xy) -> bool:
-        from lfd.ik import IKConfig, solve_ik
+        from lfd.robot.ik import IKConfig, solve_ik
         from sim.demo_paths import TASK_POINTS, dump_pose
 
         self.calls += 1

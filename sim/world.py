@@ -2,7 +2,7 @@
 
 ``World(task)`` owns one PyBullet client (DIRECT unless ``gui=True``) and passes its id to
 every call. Baxter is loaded from example-robot-data at the world origin with identity
-orientation and a fixed base, so ``lfd.kinematics`` FK equals PyBullet's link poses. The tool
+orientation and a fixed base, so ``lfd.robot.kinematics`` FK equals PyBullet's link poses. The tool
 (spoon or pitcher, ``sim.assets``) is a link fixed to ``left_gripper`` inside the robot's
 multibody: it follows ``set_q`` exactly and moves particles under physics.
 
@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pybullet as p
 
-from lfd.robots import BAXTER_LEFT, RobotSpec, example_robot_data_share, resolve_urdf
+from lfd.robot.robots import BAXTER_LEFT, RobotSpec, example_robot_data_share, resolve_urdf
 from sim import assets, quiet_stdio
 from sim import layout as L
 from sim.particles import ParticleSet, in_bowl_mask, in_tool_mask, particle_positions, remove_particles, spawn_particles

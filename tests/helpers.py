@@ -41,9 +41,9 @@ LANDMARK_NAMES = ("bowl", "marker_1", "marker_2")
 
 def small_demoset(n: int = 2, samples: int = 30, seed: int = 0, ground_truth=None):
     """``n`` small valid demonstrations (random joints near a nominal pose, 3 landmarks)."""
-    from lfd.demos import Demonstration, DemoSet
-    from lfd.robots import BAXTER_LEFT
-    from lfd.tasks import POWDER
+    from lfd.learning.demos import Demonstration, DemoSet
+    from lfd.robot.robots import BAXTER_LEFT
+    from lfd.learning.tasks import POWDER
 
     rng = np.random.default_rng(seed)
     demos = []
@@ -57,11 +57,11 @@ def small_demoset(n: int = 2, samples: int = 30, seed: int = 0, ground_truth=Non
 
 
 def synthetic_demo_dir(folder: Path, n_demos: int, time_steps: int, Z: int, samples_per_step) -> Path:
-    """Write a small known-truth powder demonstration set (lfd.synthetic, seed 1) into ``folder``."""
-    from lfd.demos import save_demos
-    from lfd.kinematics import KinematicModel
-    from lfd.synthetic import make_synthetic
-    from lfd.tasks import POWDER
+    """Write a small known-truth powder demonstration set (lfd.learning.synthetic, seed 1) into ``folder``."""
+    from lfd.learning.demos import save_demos
+    from lfd.robot.kinematics import KinematicModel
+    from lfd.learning.synthetic import make_synthetic
+    from lfd.learning.tasks import POWDER
 
     ds, _ = make_synthetic(KinematicModel.from_spec(), n_demos=n_demos, time_steps=time_steps, Z=Z, seed=1,
                            task=POWDER, samples_per_step=samples_per_step)

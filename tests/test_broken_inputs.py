@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 import torch
 
-from lfd.demos import DemoFormatError, load_demos, save_demos
-from lfd.learn import FitConfig
-from lfd.model import ModelFormatError, TaskModel
-from lfd.robots import BAXTER_LEFT
-from lfd.tasks import POWDER, TaskSpec
+from lfd.learning.demos import DemoFormatError, load_demos, save_demos
+from lfd.learning.learn import FitConfig
+from lfd.learning.model import ModelFormatError, TaskModel
+from lfd.robot.robots import BAXTER_LEFT
+from lfd.learning.tasks import POWDER, TaskSpec
 from helpers import entry_point, rewrite_npz, run_cli, small_demoset
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 @pytest.fixture(scope="module")
 def kin():
-    from lfd.kinematics import KinematicModel
+    from lfd.robot.kinematics import KinematicModel
     return KinematicModel.from_spec()
 
 
@@ -42,9 +42,9 @@ def good_dir(tmp_path):
 
 
 def _cli_demos(path, *extra) -> subprocess.CompletedProcess:
-    """``python -m lfd.demos`` in a subprocess: for a case that could block (a FIFO), where a
+    """``python -m lfd.learning.demos`` in a subprocess: for a case that could block (a FIFO), where a
     timeout must end the test; the others call the entry function in-process (``run_cli``)."""
-    return subprocess.run([sys.executable, "-m", "lfd.demos", str(path), *extra], cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "lfd.learning.demos", str(path), *extra], cwd=ROOT,
                           capture_output=True, text=True, timeout=120)
 
 
@@ -157,7 +157,7 @@ def test_empty_landmark_name_refused_before_any_fit(good_dir, kin):
 
 
 def test_demos_cli_refuses_too_few_time_steps(good_dir, capsys):
-    r = run_cli(*entry_point("python -m lfd.demos"), [good_dir, "--time-steps", "0"], capsys)
+    r = run_cli(*entry_point("python -m lfd.learning.demos"), [good_dir, "--time-steps", "0"], capsys)
     _one_line_exit_2(r, "--time-steps must be at least 2")
 
 
@@ -178,8 +178,8 @@ def test_fit_options_fail_before_the_fit(kw, fragment):
 
 
 def test_reference_landmark_missing_names_task_json():
-    from lfd.kinematics import KinematicModel
-    from lfd.learn import fit
+    from lfd.robot.kinematics import KinematicModel
+    from lfd.learning.learn import fit
     ds = small_demoset(2, 30, 0)
     ds = replace(ds, task=replace(ds.task, reference_landmark="vase"))
     with pytest.raises(ValueError, match=r"reference_landmark 'vase' \(task.json\), which is not among"):

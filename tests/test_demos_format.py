@@ -10,9 +10,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from lfd.demos import DemoFormatError, DemoSet, load_demos, save_demos
-from lfd.robots import BAXTER_LEFT
-from lfd.tasks import POWDER
+from lfd.learning.demos import DemoFormatError, DemoSet, load_demos, save_demos
+from lfd.robot.robots import BAXTER_LEFT
+from lfd.learning.tasks import POWDER
 from helpers import entry_point, rewrite_npz, run_cli, small_demoset
 NAMES = ("bowl", "marker_1", "marker_2")
 
@@ -23,7 +23,7 @@ def _demoset(n=2, samples=30, seed=0) -> DemoSet:
 
 @pytest.fixture(scope="module")
 def kin():
-    from lfd.kinematics import KinematicModel
+    from lfd.robot.kinematics import KinematicModel
     return KinematicModel.from_spec()
 
 
@@ -96,7 +96,7 @@ def test_unknown_joint_name(tmp_path, kin):
     ds = _demoset()
     bad = [*BAXTER_LEFT.joint_names[:-1], "left_w9"]
     for i, d in enumerate(ds.demos):
-        from lfd.demos import save_demonstration
+        from lfd.learning.demos import save_demonstration
         save_demonstration(tmp_path / f"d{i}.npz", d, bad, NAMES, BAXTER_LEFT)
     with pytest.raises(DemoFormatError, match=r"unknown joint name\(s\) \['left_w9'\]"):
         load_demos(tmp_path, kin=kin)
@@ -114,7 +114,7 @@ def test_not_a_zip_and_empty_folder(tmp_path, kin):
 
 def test_cli_one_line_exit_2(good_dir, capsys):
     _rewrite(good_dir / "demo_001.npz", dt=np.float64(-1.0))
-    r = run_cli(*entry_point("python -m lfd.demos"), [good_dir], capsys)
+    r = run_cli(*entry_point("python -m lfd.learning.demos"), [good_dir], capsys)
     assert r.returncode == 2
     assert "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
@@ -173,7 +173,7 @@ def test_subsample_keeps_every_kth_sample_and_scales_dt():
 
 
 def test_task_subsample_round_trips_and_is_checked(tmp_path):
-    from lfd.tasks import POUR, TaskSpec
+    from lfd.learning.tasks import POUR, TaskSpec
     POUR.save(tmp_path / "task.json")
     assert TaskSpec.load(tmp_path / "task.json") == POUR and POUR.subsample == 2
     old = POUR.to_dict()
@@ -187,8 +187,8 @@ def test_task_subsample_round_trips_and_is_checked(tmp_path):
 def test_every_stride_option_takes_numpy_integers_and_refuses_the_rest():
     # one rule for DemoSet.subsample, TaskSpec.subsample and FitConfig.subsample: a stride read
     # from an array (np.int64) is a whole number and is stored as a plain int (JSON-serialisable)
-    from lfd.learn import FitConfig
-    from lfd.tasks import POUR
+    from lfd.learning.learn import FitConfig
+    from lfd.learning.tasks import POUR
     ds = _demoset(n=2, samples=12)
     assert [s.q.shape[0] for s in ds.subsample(np.int64(3)).demos] == [len(d.q[::3]) for d in ds.demos]
     for made in (replace(POUR, subsample=np.int64(3)), FitConfig(subsample=np.int64(3))):

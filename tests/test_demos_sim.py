@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from lfd.kinematics import KinematicModel
+from lfd.robot.kinematics import KinematicModel
 from sim import layout as L
 from sim.demo_paths import TASK_POINTS
 from sim.demos import MIN_IN_BOWL, bowl_positions, generate, replay

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from lfd.dtw import alignment_step_counts, dtw_align, min_samples, random_alignment, reference_alignments
-from lfd.priors import estimate_log_trans
+from lfd.learning.dtw import alignment_step_counts, dtw_align, min_samples, random_alignment, reference_alignments
+from lfd.learning.priors import estimate_log_trans
 
 
 def _brute_force(cost, trans, offsets):
@@ -112,7 +112,7 @@ def test_reference_alignments_reject_bad_input():
 def test_effective_demos_counts_the_demonstrations_a_step_rests_on():
     """Equal shares give M, one demonstration's private step gives 1 (each others' single
     passing observation barely counts), an unvisited step 0; occupancy sums to the lengths."""
-    from lfd.dtw import effective_demos, step_occupancy
+    from lfd.learning.dtw import effective_demos, step_occupancy
 
     shared = [np.repeat(np.arange(4), 5) for _ in range(3)]  # 3 demos, 5 samples in each of 4 steps
     np.testing.assert_allclose(effective_demos(shared, 4), [3.0, 3.0, 3.0, 3.0])

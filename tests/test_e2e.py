@@ -14,9 +14,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lfd.demos import load_demos
-from lfd.kinematics import KinematicModel
-from lfd.learn import FitConfig, fit
+from lfd.learning.demos import load_demos
+from lfd.robot.kinematics import KinematicModel
+from lfd.learning.learn import FitConfig, fit
 from sim import layout as L
 from sim.evaluate import VARIANTS, run_one
 from sim.scenarios import Scenario
@@ -75,8 +75,8 @@ def test_pipeline_plans_and_replans(model_dir, free_run):
 
 def test_plans_pass_the_collision_checker(model_dir):
     """Every segment of a plan in an obstacle scene is free by the simulator's own checker."""
-    from lfd.model import TaskModel
-    from lfd.task_planner import TaskPlanner, TaskPlannerSettings
+    from lfd.learning.model import TaskModel
+    from lfd.planning.task_planner import TaskPlanner, TaskPlannerSettings
     from sim.collision import make_collision_fns
     from sim.world import World
 

@@ -1,10 +1,10 @@
-"""Damped-least-squares IK (lfd/ik.py) on Baxter's left arm, float64."""
+"""Damped-least-squares IK (lfd/robot/ik.py) on Baxter's left arm, float64."""
 
 import pytest
 import torch
 
-from lfd.ik import IKConfig, rotation_error, solve_ik, tool_point_positions
-from lfd.kinematics import KinematicModel
+from lfd.robot.ik import IKConfig, rotation_error, solve_ik, tool_point_positions
+from lfd.robot.kinematics import KinematicModel
 
 
 @pytest.fixture(scope="module")

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import torch
 
-from lfd.checkpoint import (Interrupted, InterruptGuard, atomic_write_text, checkpoint_path, load_checkpoint,
+from lfd.learning.checkpoint import (Interrupted, InterruptGuard, atomic_write_text, checkpoint_path, load_checkpoint,
                             temp_files)
 from lfd.cli import UsageError
 from helpers import synthetic_demo_dir
@@ -158,7 +158,7 @@ def test_guard_defers_signals_in_critical_sections(sig, status):
 
 
 def test_checkpoint_round_trip_with_every_restart_dropped(tmp_path):
-    from lfd.checkpoint import FitProgress, save_checkpoint
+    from lfd.learning.checkpoint import FitProgress, save_checkpoint
     p = FitProgress(config={"seed": 0}, fingerprint="abc", restart_losses=(float("nan"),), loss_history=((),),
                     em_iterations=(0,), notes=("restart 0 dropped: non-finite loss",))
     save_checkpoint(tmp_path, p)

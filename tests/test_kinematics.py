@@ -8,8 +8,8 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from lfd.kinematics import KinematicModel, KinematicsError
-from lfd.robots import BAXTER_LEFT, RobotSpec, resolve_urdf, robot_from_name
+from lfd.robot.kinematics import KinematicModel, KinematicsError
+from lfd.robot.robots import BAXTER_LEFT, RobotSpec, resolve_urdf, robot_from_name
 
 N_CONFIGS = 200
 # Measured worst case over the 200 configurations: float64 8e-8 m / 4.5e-7 rad, float32

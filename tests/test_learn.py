@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from lfd.kinematics import KinematicModel
-from lfd.learn import FitConfig, _Data, _Fitter, fit, initial_guesses
-from lfd.model import step_nll_tensor
-from lfd.synthetic import make_synthetic
-from lfd.tasks import POWDER
+from lfd.robot.kinematics import KinematicModel
+from lfd.learning.learn import FitConfig, _Data, _Fitter, fit, initial_guesses
+from lfd.learning.model import step_nll_tensor
+from lfd.learning.synthetic import make_synthetic
+from lfd.learning.tasks import POWDER
 
 T_STEPS = 8
 
@@ -65,7 +65,7 @@ def test_linear_init_with_band_0_keeps_the_uniform_warp(synth, kin):
     """init='linear' starts every restart from the uniform time warp; with band 0 the fit's
     alignment is that warp, every step rests on every demonstration (effective_demos = M up to
     the uneven split of S_m into T parts), and the fit still recovers the tool point."""
-    from lfd.dtw import effective_demos, linear_alignment
+    from lfd.learning.dtw import effective_demos, linear_alignment
 
     ds, truth = synth
     cfg = FitConfig(time_steps=T_STEPS, init="linear", band=0, restarts=2, seed=0)
@@ -142,7 +142,7 @@ def test_fit_recovers_tool_point_and_landmark(synth, kin):
     assert len(res.restart_losses) == 3 and res.final_loss <= min(res.restart_losses) + 1e-9
     assert all(a[0] == 0 and a[-1] == T_STEPS - 1 for a in res.alignments)
     # the synthetic demonstrations share every step: no demonstration has steps of its own
-    from lfd.dtw import effective_demos
+    from lfd.learning.dtw import effective_demos
     np.testing.assert_allclose(res.effective_demos, effective_demos(res.alignments, T_STEPS))
     assert np.median(res.effective_demos) > len(ds.demos) / 3
     assert not any("rest on few demonstrations" in w for w in res.warnings)
@@ -195,7 +195,7 @@ def test_resume_with_subsample_equals_an_uninterrupted_fit(kin):
     resumed = fit(ds, kin, cfg, resume=saved[0])
     assert resumed.resumed_restarts == 1 and resumed.restart_losses == pytest.approx(full.restart_losses)
     assert torch.equal(resumed.model.mu, full.model.mu) and torch.equal(resumed.model.tool, full.model.tool)
-    from lfd.checkpoint import CheckpointError
+    from lfd.learning.checkpoint import CheckpointError
     with pytest.raises(CheckpointError, match="subsample"):
         fit(ds, kin, FitConfig(**{**cfg.__dict__, "subsample": 3}), resume=saved[0])
 
@@ -239,7 +239,7 @@ def test_tool_search_starts_lbfgs_from_the_best_grid_point(synth, kin):
 
 def test_occupancy_note_warns_below_a_third():
     """The fit warns when the median step rests on under a third of the demonstrations."""
-    from lfd.learn import occupancy_note
+    from lfd.learning.learn import occupancy_note
 
     pour_like = np.array([1.2, 2.0, 3.3, 3.3, 6.0, 10.0])  # median 3.3 of 11
     assert "median 3.3 of 11" in occupancy_note(pour_like, 11)
@@ -251,8 +251,8 @@ def test_occupancy_note_warns_below_a_third():
 def test_synthetic_set_takes_its_tasks_dt_and_loads_back(kin, tmp_path, task):
     """A synthetic set is sampled at its task's dt, so saved with its task.json it loads again
     (the loader refuses a task.json whose dt differs from the files')."""
-    from lfd.demos import load_demos, save_demos
-    from lfd.tasks import task_from_name
+    from lfd.learning.demos import load_demos, save_demos
+    from lfd.learning.tasks import task_from_name
 
     spec = task_from_name(task)
     ds, _ = make_synthetic(kin, n_demos=2, time_steps=3, samples_per_step=(2, 3), seed=0, task=spec)

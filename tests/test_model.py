@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import torch
 
-from lfd.model import (ModelFormatError, TaskModel, features_tensor, landmarks_inverse_tensor,
+from lfd.learning.model import (ModelFormatError, TaskModel, features_tensor, landmarks_inverse_tensor,
                        logdet_tensor, step_nll_tensor, virtual_inverse_tensor)
-from lfd.robots import BAXTER_LEFT
-from lfd.synthetic import random_rotation
-from lfd.tasks import POWDER
+from lfd.robot.robots import BAXTER_LEFT
+from lfd.learning.synthetic import random_rotation
+from lfd.learning.tasks import POWDER
 
 
 def _random_sigma_inv(T, F, gen, dtype):

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from lfd.edgestore import BLOCKED, FREE, UNKNOWN
-from lfd.planner import ClosedLoopPlanner, PlannerSettings
-from lfd.roadmap import Roadmap, k_prm_star
-from lfd.stepcost import CallableStepCost
-from lfd.stsearch import SearchGraph, cost_to_go, transition_table
+from lfd.planning.edgestore import BLOCKED, FREE, UNKNOWN
+from lfd.planning.planner import ClosedLoopPlanner, PlannerSettings
+from lfd.planning.roadmap import Roadmap, k_prm_star
+from lfd.planning.stepcost import CallableStepCost
+from lfd.planning.stsearch import SearchGraph, cost_to_go, transition_table
 from helpers import box_world
 
 # ---------------------------------------------------------------- toy world (d = 2)

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 import torch
 
-from lfd.kinematics import KinematicModel
-from lfd.model import TaskModel, logdet_tensor
-from lfd.robots import BAXTER_LEFT
-from lfd.roadmap import k_prm_star
-from lfd.task_planner import TaskPlanner, TaskPlannerSettings
-from lfd.tasks import POWDER
+from lfd.robot.kinematics import KinematicModel
+from lfd.learning.model import TaskModel, logdet_tensor
+from lfd.robot.robots import BAXTER_LEFT
+from lfd.planning.roadmap import k_prm_star
+from lfd.planning.task_planner import TaskPlanner, TaskPlannerSettings
+from lfd.learning.tasks import POWDER
 
 
 def sweep_model(home) -> TaskModel:

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import torch
 
-from lfd.model import TaskModel
-from lfd.robots import BAXTER_LEFT
-from lfd.tasks import POWDER
+from lfd.learning.model import TaskModel
+from lfd.robot.robots import BAXTER_LEFT
+from lfd.learning.tasks import POWDER
 
 ROOT = Path(__file__).resolve().parent.parent
 

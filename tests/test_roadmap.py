@@ -1,12 +1,12 @@
 """PRM* roadmap over callables: connection rule, incremental growth, edge ids, sampling (edges are
-checked by the planner: lfd.edgestore)."""
+checked by the planner: lfd.planning.edgestore)."""
 
 import math
 
 import numpy as np
 import pytest
 
-from lfd.roadmap import Roadmap, RoadmapSettings, ik_biased_samples, k_prm_star, mixed_samples
+from lfd.planning.roadmap import Roadmap, RoadmapSettings, ik_biased_samples, k_prm_star, mixed_samples
 from helpers import box_world
 
 BOX_LO, BOX_HI = np.array([-0.2, -0.6]), np.array([0.2, 0.6])
@@ -61,7 +61,7 @@ def test_add_vertices_grows_without_rebuilding():
 
 
 def test_vertices_are_free_and_edges_are_left_to_the_planner():
-    """The roadmap checks its vertices, never its edges (edge state belongs to lfd.edgestore):
+    """The roadmap checks its vertices, never its edges (edge state belongs to lfd.planning.edgestore):
     building, growing and extra edges call no ``segment_fn`` and keep the edges the box cuts;
     ``segment_collides`` passes its ends to ``segment_fn`` and returns its answer, every call."""
     rng = np.random.default_rng(3)

@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lfd.checkpoint import FitProgress, save_checkpoint
-from lfd.demos import DemoSet, save_demonstration, save_demos
-from lfd.robots import BAXTER_LEFT, RobotSpec
-from lfd.tasks import POWDER
+from lfd.learning.checkpoint import FitProgress, save_checkpoint
+from lfd.learning.demos import DemoSet, save_demonstration, save_demos
+from lfd.robot.robots import BAXTER_LEFT, RobotSpec
+from lfd.learning.tasks import POWDER
 from helpers import entry_point, rewrite_npz, run_cli, small_demoset, synthetic_demo_dir
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -122,7 +122,7 @@ def _plan(*args, model=None):
 def _model(d: Path, names=("bowl", "cup"), robot=BAXTER_LEFT, task=POWDER, where="m") -> Path:
     """A small valid model (T=4) that keeps the landmarks ``names``, saved into ``d / where``."""
     import torch
-    from lfd.model import TaskModel
+    from lfd.learning.model import TaskModel
     T, F, z = 4, len(robot.joint_names) + 3, len(names)
     m = TaskModel(torch.zeros(3, dtype=torch.float64), torch.full((z,), 1.0 / z, dtype=torch.float64),
                   torch.zeros(T, F, dtype=torch.float64), torch.eye(F, dtype=torch.float64).repeat(T, 1, 1),
@@ -254,7 +254,7 @@ def synth_dir(tmp_path_factory):
 
 def _poison(monkeypatch, first_calls: float):
     """Make ``EMFitter.total_loss`` NaN for its first ``first_calls`` calls."""
-    from lfd.em import EMFitter
+    from lfd.learning.em import EMFitter
     original, calls = EMFitter.total_loss, {"n": 0}
 
     def total_loss(self, *a):
@@ -303,7 +303,7 @@ def test_all_restarts_failing_stops_without_a_model(synth_dir, tmp_path, monkeyp
 
 
 def test_the_task_json_stride_is_the_default_and_subsample_overrides_it(synth_dir, tmp_path, capsys):
-    from lfd.tasks import TaskSpec
+    from lfd.learning.tasks import TaskSpec
     demos = tmp_path / "demos"
     shutil.copytree(synth_dir, demos)
     task = TaskSpec.load(demos / "task.json")
@@ -349,7 +349,7 @@ def test_every_option_has_help_with_its_default(command):
 
 def test_help_states_the_fit_defaults():
     """The defaults the help text spells out for options left to ``FitConfig`` are its defaults."""
-    from lfd.learn import FitConfig
+    from lfd.learning.learn import FitConfig
     cfg = FitConfig()
     text = " ".join(_parsers()["train.py"].format_help().split())
     assert f"FitConfig's, {cfg.restarts})" in text
@@ -382,7 +382,7 @@ def test_one_landmark_vocabulary_across_train_and_plan():
 
 @pytest.mark.parametrize("device", ["cpu", "cpu:0", "cuda", "cuda:1", "mps", "meta"])
 def test_device_takes_any_torch_device_string(device):
-    from lfd.learn import FitConfig
+    from lfd.learning.learn import FitConfig
     from lfd.train_cli import parse_args
     assert parse_args(["--task", "powder", "--device", device]).device == device
     assert FitConfig(device=device).device == device
@@ -402,13 +402,13 @@ def test_device_that_is_not_a_torch_device_is_one_line_exit_2(device, tmp_path, 
 def test_failed_train_leaves_no_out_folder_and_keeps_the_exception(synth_dir, tmp_path, monkeypatch):
     """A bug inside the fit is not swallowed (its traceback is the report), and the folders the
     run created are removed; a folder that existed before keeps what it held."""
-    import lfd.learn
+    import lfd.learning.learn
     import train
 
     def broken_fit(*args, **kwargs):
         raise RuntimeError("a bug in the fit")
 
-    monkeypatch.setattr(lfd.learn, "fit", broken_fit)
+    monkeypatch.setattr(lfd.learning.learn, "fit", broken_fit)
     argv = ["--task", "powder", "--demos", str(synth_dir), "--restarts", "1", "--time-steps", "5"]
     out = tmp_path / "a" / "b" / "out"
     with pytest.raises(RuntimeError, match="a bug in the fit"):

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from lfd.model import FORMAT, ModelFormatError, TaskModel
+from lfd.learning.model import FORMAT, ModelFormatError, TaskModel
 from helpers import entry_point, run_cli
 
 

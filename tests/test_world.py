@@ -7,8 +7,8 @@ import numpy as np
 import pybullet as p
 import pytest
 
-from lfd.robots import BAXTER_LEFT, RobotSpec
-from lfd.tasks import POUR, POWDER
+from lfd.robot.robots import BAXTER_LEFT, RobotSpec
+from lfd.learning.tasks import POUR, POWDER
 from sim import layout as L
 from sim.world import World
 from helpers import entry_point, run_cli

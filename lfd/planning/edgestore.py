@@ -1,10 +1,10 @@
 """Edge state of the spatiotemporal roadmap: costs and collision validity, in one owner.
 
-``EdgeStore`` keeps, for every edge ``e = (u, w)`` of a ``lfd.roadmap.Roadmap`` (row = edge id):
+``EdgeStore`` keeps, for every edge ``e = (u, w)`` of a ``lfd.planning.roadmap.Roadmap`` (row = edge id):
 
 * its traversal time ``tau[e] = max_j |q_w - q_u|_j / vmax_j`` at the joint velocity limits and
   its ``m[e] = max(1, ceil(tau / quad_dt))`` quadrature sub-intervals, whose ``m - 1`` interior
-  configurations are prepared once by the step cost (``lfd.stepcost``: FK and everything else
+  configurations are prepared once by the step cost (``lfd.planning.stepcost``: FK and everything else
   that does not depend on the landmarks);
 * its cost at every time step, the line integral of the paper's Sec. V-B over the motion::
 
@@ -28,7 +28,7 @@ point) at all its quadrature nodes, grown by ``sweep_margin`` (link radius, tool
 half a node spacing. ``check(eids)`` settles unknown edges with the roadmap's ``segment_fn``.
 
 Vertex step costs ``ell (n, T)`` come with the edge costs: a time edge ``(v, t) -> (v, t + k)``
-costs ``trans[t, k] + ell[v, t + k]`` (``lfd.stsearch``).
+costs ``trans[t, k] + ell[v, t + k]`` (``lfd.planning.stsearch``).
 """
 
 from __future__ import annotations
@@ -38,8 +38,8 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from lfd.roadmap import Roadmap
-from lfd.stepcost import StepCost
+from lfd.planning.roadmap import Roadmap
+from lfd.planning.stepcost import StepCost
 
 __all__ = ["BLOCKED", "FREE", "UNKNOWN", "EdgeStore"]
 
@@ -84,7 +84,7 @@ class EdgeStore:
     Parameters
     ----------
     roadmap : the Roadmap (it may grow; ``sync`` picks new vertices and edges up).
-    step_cost : a ``lfd.stepcost.StepCost``.
+    step_cost : a ``lfd.planning.stepcost.StepCost``.
     stay : (T,) cost of one sampling interval spent in step t (``-log p(t | t)``, inf = forbidden).
     dt : sampling interval (s); vmax : (d,) joint velocity limits; quad_dt : time between
     quadrature nodes (default dt).
@@ -315,7 +315,7 @@ class EdgeStore:
     # ------------------------------------------------------------------ costs
     def costs(self) -> tuple[np.ndarray, np.ndarray]:
         """``(ell (n, T), W (E, T))`` for the current landmarks, computed now if stale.
-        May raise ``LookupError`` or ``lfd.stepcost.CostError`` from the step cost."""
+        May raise ``LookupError`` or ``lfd.planning.stepcost.CostError`` from the step cost."""
         if self._costs is None:
             if self._landmarks is None:
                 raise LookupError("no landmarks yet: call invalidate(landmarks=...) first")

@@ -1,7 +1,7 @@
 """Closed-loop planning on the spatiotemporal roadmap (paper Sec. V-B, last paragraph).
 
 ``ClosedLoopPlanner`` plans from the robot's current configuration and time step whenever asked.
-Edge knowledge lives in one ``lfd.edgestore.EdgeStore``: new sensed landmarks
+Edge knowledge lives in one ``lfd.planning.edgestore.EdgeStore``: new sensed landmarks
 (``update_landmarks``) make every edge cost stale, and the next ``plan`` recomputes them in one
 batch; an object that moved (``object_moved``) makes the collision state of the edges near
 it unknown again. A plan:
@@ -10,7 +10,7 @@ it unknown again. A plan:
    edges joining the robot's configuration (and a goal configuration) to their ``connect_k``
    nearest vertices;
 2. computes the exact cost-to-go of every product node with the edges not known to collide
-   (``lfd.stsearch.cost_to_go``) and runs A* with it from the robot's node;
+   (``lfd.planning.stsearch.cost_to_go``) and runs A* with it from the robot's node;
 3. checks the path's unchecked edges (Lazy PRM; all of them, then decides), marks the colliding
    ones (and every edge of an end vertex found in collision) and searches again with the same
    heuristic, a consistent lower bound, until the path is collision-free; when such a search
@@ -31,10 +31,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lfd.edgestore import BLOCKED, FREE, UNKNOWN, EdgeStore
-from lfd.roadmap import Roadmap, k_prm_star
-from lfd.stepcost import CostError, StepCost
-from lfd.stsearch import SearchBudgetExceeded, SearchGraph, astar, cost_to_go, transition_table
+from lfd.planning.edgestore import BLOCKED, FREE, UNKNOWN, EdgeStore
+from lfd.planning.roadmap import Roadmap, k_prm_star
+from lfd.planning.stepcost import CostError, StepCost
+from lfd.planning.stsearch import SearchBudgetExceeded, SearchGraph, astar, cost_to_go, transition_table
 
 __all__ = ["STATUSES", "ClosedLoopPlanner", "PlanResult", "PlannerSettings"]
 
@@ -130,7 +130,7 @@ class ClosedLoopPlanner:
     Parameters
     ----------
     roadmap : Roadmap (may grow between plans).
-    step_cost : ``lfd.stepcost.StepCost`` (e.g. ``ModelStepCost(model)``).
+    step_cost : ``lfd.planning.stepcost.StepCost`` (e.g. ``ModelStepCost(model)``).
     trans_cost : (T, K) costs of the transitions ``offsets`` in the step cost's units (inf =
         not permitted), e.g. ``TaskModel.trans_cost``.
     dt : sampling interval of the demonstrations (s); vmax : (d,) joint velocity limits.
@@ -159,7 +159,7 @@ class ClosedLoopPlanner:
         self.edges = EdgeStore(roadmap, step_cost, stay, dt, vmax, settings.quad_dt, keypoint_fn,
                                settings.sweep_margin)
         self._landmark_error: str | None = "no landmarks yet: call update_landmarks"
-        self._adjacency: dict = {}  # the roadmap's adjacency as arrays, read by A* (lfd.stsearch)
+        self._adjacency: dict = {}  # the roadmap's adjacency as arrays, read by A* (lfd.planning.stsearch)
         self._adjacency_edges = -1
 
     # ------------------------------------------------------------------ what changed

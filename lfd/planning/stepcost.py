@@ -1,7 +1,7 @@
 """Step costs for the planner, split so that a landmark move costs milliseconds (paper Sec. V-B).
 
 The planner's cost of holding configuration ``q`` at time step ``t`` is ``ell(q, t) >= 0``, the
-learned negative log-likelihood in Eq. 3 units less its per-step floor (``lfd.model``). Paths
+learned negative log-likelihood in Eq. 3 units less its per-step floor (``lfd.learning.model``). Paths
 touch the same configurations (roadmap vertices and the quadrature points of edges) before and
 after a landmark moves; only the landmarks change. A ``StepCost`` therefore has two stages:
 
@@ -38,7 +38,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
-from lfd.model import TaskModel
+from lfd.learning.model import TaskModel
 
 __all__ = ["CallableStepCost", "CostError", "ModelStepCost", "StepCost"]
 

@@ -1,8 +1,8 @@
-"""The EM machinery of ``lfd.learn.fit``: the data as tensors, M-step (LBFGS), E-step (DTW).
+"""The EM machinery of ``lfd.learning.learn.fit``: the data as tensors, M-step (LBFGS), E-step (DTW).
 
 ``FitData`` holds everything that does not depend on zeta or eta (forward kinematics computed
 once); ``EMFitter`` runs EM from one initial alignment (one restart of ``fit``). The objective
-and the profiled M-step are described in ``lfd.learn``'s docstring; shapes: ``N`` observations
+and the profiled M-step are described in ``lfd.learning.learn``'s docstring; shapes: ``N`` observations
 of ``M`` demonstrations, ``T`` time steps, ``F = d + 3`` features, ``Z`` landmarks.
 """
 
@@ -13,9 +13,9 @@ import math
 import numpy as np
 import torch
 
-from lfd.dtw import dtw_align
-from lfd.model import aligned_nll_tensor, landmarks_inverse_tensor, step_nll_tensor
-from lfd.priors import estimate_log_trans, floor_prior, volume_prior
+from lfd.learning.dtw import dtw_align
+from lfd.learning.model import aligned_nll_tensor, landmarks_inverse_tensor, step_nll_tensor
+from lfd.learning.priors import estimate_log_trans, floor_prior, volume_prior
 
 __all__ = ["EM_FAILURES", "EMFitter", "FitData"]
 

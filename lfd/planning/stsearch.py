@@ -8,7 +8,7 @@ step and two kinds of edges:
 * spatial edges ``(a, t) -> (b, t)`` for the directed edges ``a -> b`` of a ``SearchGraph`` (both
   directions of every roadmap edge not known to collide, plus one-way edges of temporary
   vertices: the robot's configuration is a source, a goal configuration a sink), cost
-  ``W[row, t]`` (``lfd.edgestore``).
+  ``W[row, t]`` (``lfd.planning.edgestore``).
 
 It is never materialized (~n T k edges: 1M at n = 1,000, T = 24). Two pieces search it:
 

@@ -1,4 +1,4 @@
-"""A learned task model planned in a new scene: the glue between ``lfd.model`` and ``lfd.planner``.
+"""A learned task model planned in a new scene: the glue between ``lfd.learning.model`` and ``lfd.planning.planner``.
 
 ``TaskPlanner`` takes a ``TaskModel`` and the caller's own callables (``collision_fn``,
 ``segment_fn``, optionally ``sample_fn``), builds a PRM* whose vertices are biased towards where
@@ -6,11 +6,11 @@ the model wants the robot for the current landmarks, and re-plans lazily when la
 
     planner = TaskPlanner(model, collision_fn, segment_fn)
     planner.update_landmarks(names, T_world_landmarks)   # (Z,) names, (Z, 4, 4) poses
-    result = planner.plan(q_current, t_current=0)        # lfd.planner.PlanResult
+    result = planner.plan(q_current, t_current=0)        # lfd.planning.planner.PlanResult
 
 Biased sampling (in the spirit of the paper's [2]): feature vectors are drawn from the learned
 per-step Gaussians ``N(mu_t, Sigma_t)`` as chains through the time steps (see
-``lfd.biased.biased_configurations``); the task part (the tool point relative to the virtual landmark) is
+``lfd.planning.biased.biased_configurations``); the task part (the tool point relative to the virtual landmark) is
 mapped into the world through the current ``K_virt``, IK places the tool point there, pulled
 towards the sampled joints in the null space, and ``project_to_model`` then matches the sample in
 the step's learned metric, never stepping from a collision-free configuration into a colliding
@@ -24,9 +24,9 @@ never rebuilt. When no sampled execution's IK reaches some step's tool-point tar
 landmark is out of the arm's reach) and the learned transitions cannot skip that step
 (``can_bypass``), ``plan`` returns the status ``unreachable``.
 
-Interactive rates. A landmark update only marks the edge costs stale (``lfd.edgestore``): the
+Interactive rates. A landmark update only marks the edge costs stale (``lfd.planning.edgestore``): the
 next plan recomputes all of them in one batch from per-configuration parts prepared once
-(``lfd.stepcost.ModelStepCost``). Sensed landmarks are obstacles too: when one moves, the edges
+(``lfd.planning.stepcost.ModelStepCost``). Sensed landmarks are obstacles too: when one moves, the edges
 whose motion passes within ``object_radius`` of its old or new place are checked again when a
 path uses them. The regrowth after a far move (IK and projection of new biased vertices, seconds)
 is kept off the critical path when the caller asks: ``update_landmarks(..., grow=False)`` answers
@@ -45,11 +45,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from lfd.biased import biased_configurations, chain_edges, project_to_model
-from lfd.model import TaskModel
-from lfd.planner import ClosedLoopPlanner, PlannerSettings, PlanResult
-from lfd.roadmap import Roadmap, RoadmapSettings
-from lfd.stepcost import ModelStepCost
+from lfd.learning.model import TaskModel
+from lfd.planning.biased import biased_configurations, chain_edges, project_to_model
+from lfd.planning.planner import ClosedLoopPlanner, PlannerSettings, PlanResult
+from lfd.planning.roadmap import Roadmap, RoadmapSettings
+from lfd.planning.stepcost import ModelStepCost
 
 TASK_STEP_SD = 0.05  # m: a step whose tool-point sd (largest axis) is below this is task-relevant
 

@@ -1,4 +1,4 @@
-"""Priors of the task model and the transition estimate, all in Eq. 3 units (see lfd.model).
+"""Priors of the task model and the transition estimate, all in Eq. 3 units (see lfd.learning.model).
 
 Every prior here is ``-2 log p`` up to a constant, so it adds directly to the loss.
 
@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from lfd.dtw import alignment_step_counts
+from lfd.learning.dtw import alignment_step_counts
 
 __all__ = ["estimate_log_trans", "floor_prior", "volume_prior"]
 

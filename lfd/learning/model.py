@@ -27,8 +27,8 @@ from pathlib import Path
 import torch
 
 from lfd.errors import UserInputError
-from lfd.robots import RobotSpec
-from lfd.tasks import TaskSpec
+from lfd.learning.tasks import TaskSpec
+from lfd.robot.robots import RobotSpec
 
 __all__ = [
     "COVARIANCES",
@@ -216,7 +216,7 @@ class TaskModel:
     def kin(self):
         """The ``KinematicModel`` used when ``step_nll`` gets no poses (built on first use)."""
         if self._kin is None:
-            from lfd.kinematics import KinematicModel
+            from lfd.robot.kinematics import KinematicModel
             self._kin = KinematicModel.from_spec(self.robot, dtype=self.dtype, device=self.device)
         return self._kin
 
@@ -288,7 +288,7 @@ class TaskModel:
 
     def save(self, out_dir: str | Path) -> None:
         """Write ``model.pt`` (tensors only) and ``config.json`` into ``out_dir``, each atomically."""
-        from lfd.checkpoint import atomic_torch_save, atomic_write_text
+        from lfd.learning.checkpoint import atomic_torch_save, atomic_write_text
 
         out_dir = Path(out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)

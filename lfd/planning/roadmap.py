@@ -15,7 +15,7 @@ kept, nothing is rebuilt except the k-d tree (O(n log n), milliseconds at n = 10
 
 The roadmap holds structure only: vertices are collision-checked when added, edges are not.
 Whether an edge is collision-free is edge state, owned with the edge costs by
-``lfd.edgestore.EdgeStore`` (checked lazily on the paths a search returns, invalidated near
+``lfd.planning.edgestore.EdgeStore`` (checked lazily on the paths a search returns, invalidated near
 objects that move). Edges are never removed, so edge ids stay valid for every cache.
 
 Vertices live in a numpy array ``vertices: (n, d)``; edges in a ``networkx.Graph`` whose nodes are
@@ -273,7 +273,7 @@ def mixed_samples(sample_fn: Callable, n: int, biased_samples: np.ndarray, bias_
 def ik_biased_samples(targets, ik_fn: Callable) -> np.ndarray:
     """Configurations reaching task-space ``targets`` (e.g. the model's per-step means).
 
-    ``ik_fn(targets) -> (Q: (m, d), ok: (m,) bool)``: any batched IK (lfd.ik, with the tool
+    ``ik_fn(targets) -> (Q: (m, d), ok: (m,) bool)``: any batched IK (lfd.robot.ik, with the tool
     offset and seeds chosen by the caller). Returns ``Q[ok]: (m', d)`` as a float numpy array.
     """
     Q, ok = ik_fn(targets)

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from lfd.demos import Demonstration, DemoSet
-from lfd.robots import BAXTER_LEFT
+from lfd.learning.demos import Demonstration, DemoSet
+from lfd.robot.robots import BAXTER_LEFT
 
 __all__ = ["SyntheticTruth", "make_synthetic", "random_rotation"]
 

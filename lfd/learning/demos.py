@@ -6,7 +6,7 @@ A demonstration set is a folder::
 
     DIR/
       <any name>.npz       one file per demonstration, loaded in sorted order
-      task.json            optional: the TaskSpec (lfd.tasks) the set demonstrates
+      task.json            optional: the TaskSpec (lfd.learning.tasks) the set demonstrates
       ground_truth.json    optional: the hidden truth of a synthetic set (evaluation only)
 
 Each ``.npz`` (``numpy.savez``; no pickled objects) holds:
@@ -19,7 +19,7 @@ key                 shape / type    meaning
 ``joint_names``     (d,) str        names of the columns of ``q``, as in the URDF
 ``landmark_poses``  (Z, 4, 4) float ``T_world_landmark`` of each sensed landmark (rigid)
 ``landmark_names``  (Z,) str        names, the same set and order in every file
-``robot``           () str          JSON of ``lfd.robots.RobotSpec.to_dict()``
+``robot``           () str          JSON of ``lfd.robot.robots.RobotSpec.to_dict()``
 ==================  ==============  ======================================================
 
 ``world`` is the robot's base (URDF root) frame. See the README for converting a CSV
@@ -36,9 +36,9 @@ from pathlib import Path
 import numpy as np
 
 from lfd.errors import UserInputError
-from lfd.robots import RobotSpec
-from lfd.se3 import rigid_errors
-from lfd.tasks import TaskSpec, check_point, check_stride
+from lfd.learning.tasks import TaskSpec, check_point, check_stride
+from lfd.robot.robots import RobotSpec
+from lfd.robot.se3 import rigid_errors
 
 __all__ = [
     "REQUIRED_KEYS",
@@ -338,7 +338,7 @@ def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
         raise _fail(str(files[0]), f"joint_names must be {list(robot.joint_names)} in this order, got "
                                    f"{list(joint_names)}")
     if kin is None:
-        from lfd.kinematics import KinematicModel, KinematicsError
+        from lfd.robot.kinematics import KinematicModel, KinematicsError
         try:
             kin = KinematicModel.from_spec(robot)
         except KinematicsError as e:
@@ -351,10 +351,10 @@ def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
 
 
 def _main(argv=None) -> int:
-    """``python -m lfd.demos DIR``: validate a demonstration set and summarise it."""
+    """``python -m lfd.learning.demos DIR``: validate a demonstration set and summarise it."""
     from lfd.cli import ArgumentParser
 
-    parser = ArgumentParser(prog="python -m lfd.demos", description=_main.__doc__)
+    parser = ArgumentParser(prog="python -m lfd.learning.demos", description=_main.__doc__)
     parser.add_argument("path", help="folder of .npz demonstrations (or one .npz file)")
     parser.add_argument("--time-steps", type=int, default=None,
                         help="minimum samples per demonstration (default: task.json's, or 24)")
@@ -372,6 +372,6 @@ def _main(argv=None) -> int:
 
 if __name__ == "__main__":
     from lfd.cli import run_main
-    from lfd.demos import _main as main  # the package's module, whose error classes run_main knows
+    from lfd.learning.demos import _main as main  # the package's module, whose error classes run_main knows
 
-    run_main(main, prog="python -m lfd.demos")
+    run_main(main, prog="python -m lfd.learning.demos")

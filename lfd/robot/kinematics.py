@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 
 from lfd.errors import UserInputError
-from lfd.robots import BAXTER_LEFT, RobotSpec, resolve_urdf
+from lfd.robot.robots import BAXTER_LEFT, RobotSpec, resolve_urdf
 
 __all__ = ["KinematicModel", "KinematicsError"]
 

@@ -1,8 +1,8 @@
 """Learning a task model from demonstrations: EM with DTW (E-step) and LBFGS (M-step), Sec. IV.
 
-The objective is the negative log posterior of Eq. 1 in Eq. 3 units (see ``lfd.model``):
+The objective is the negative log posterior of Eq. 1 in Eq. 3 units (see ``lfd.learning.model``):
 ``sum_obs [s log|Sigma_t| + |sigma_inv_t (f - mu_t)|^2] + sum_trans -2 log p(t'|t) + priors``
-(priors in ``lfd.priors``). Losses reported per observation.
+(priors in ``lfd.learning.priors``). Losses reported per observation.
 
 M-step. With alignments fixed, zeta and eta are estimated together. For the default priors
 the eta-optimum for a given zeta is closed-form (per-step mean, ``Sigma_t = (S_t + nu Psi) /
@@ -15,8 +15,8 @@ env weights are ``w = w_ref + B u`` with ``B (Z, Z-1)`` an orthonormal basis of 
 (the tangent space of the constraint, Sec. IV-A); weights may be negative. After each M-step
 ``w`` is re-projected to sum exactly to 1 (to rounding).
 
-This module holds the settings, the restarts and pruning; the EM steps are in ``lfd.em``.
-After each restart ``fit`` reports a ``lfd.checkpoint.FitProgress`` (``on_restart``) and can
+This module holds the settings, the restarts and pruning; the EM steps are in ``lfd.learning.em``.
+After each restart ``fit`` reports a ``lfd.learning.checkpoint.FitProgress`` (``on_restart``) and can
 continue from one (``resume``): the restarts' starts come from one generator per seed
 (``initial_guesses``), so a resumed fit ends exactly where an uninterrupted one does.
 
@@ -41,11 +41,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
-from lfd.checkpoint import CheckpointError, FitProgress, config_record, demos_fingerprint
-from lfd.dtw import effective_demos, linear_alignment, min_samples, random_alignment, reference_alignments
-from lfd.em import EM_FAILURES, EMFitter, FitData
-from lfd.model import COVARIANCES, OFFSETS, TaskModel
-from lfd.tasks import check_stride, check_whole
+from lfd.learning.checkpoint import CheckpointError, FitProgress, config_record, demos_fingerprint
+from lfd.learning.dtw import effective_demos, linear_alignment, min_samples, random_alignment, reference_alignments
+from lfd.learning.em import EM_FAILURES, EMFitter, FitData
+from lfd.learning.model import COVARIANCES, OFFSETS, TaskModel
+from lfd.learning.tasks import check_stride, check_whole
 
 __all__ = ["ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitResult", "fit", "initial_guesses"]
 
@@ -74,9 +74,9 @@ class FitConfig:
         (``DemoSet.subsample``; the model's ``task.dt`` becomes ``subsample`` times the
         demonstrations'). The paper's remedy for its 50 Hz pour demonstrations (Sec. VI-B).
     logdet_scale : ``s`` in ``s log|Sigma|`` (1 = maximum likelihood).
-    floor_joint, floor_task : the variance-floor prior's standard deviations (lfd.priors).
+    floor_joint, floor_task : the variance-floor prior's standard deviations (lfd.learning.priors).
     floor_weight : its pseudo-observations ``nu``; None = mean observations per time step.
-    volume_prior : add ``-2 log|det A|`` per observation (lfd.priors); zero for aligned frames.
+    volume_prior : add ``-2 log|det A|`` per observation (lfd.learning.priors); zero for aligned frames.
     trans_floor : smallest probability of a permitted transition.
     init : how each restart's first alignments are drawn. 'reference' (default): every
         demonstration is warped by DTW of its joint angles onto one reference demonstration
@@ -190,7 +190,7 @@ class FitResult:
     env_before_pruning: dict
     alignments: tuple[np.ndarray, ...]
     virtual_det: tuple[float, ...]  # |det A| of K_virt^-1's linear part, per demonstration
-    effective_demos: tuple[float, ...]  # per step, in the final alignment (lfd.dtw.effective_demos);
+    effective_demos: tuple[float, ...]  # per step, in the final alignment (lfd.learning.dtw.effective_demos);
     # a warning when the median is under M / 3 (with M >= 4 demonstrations)
     warnings: tuple[str, ...]
     timings: dict
@@ -242,14 +242,14 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
 
     Parameters
     ----------
-    demoset : lfd.demos.DemoSet (its ``ground_truth`` is never read).
-    kin : lfd.kinematics.KinematicModel of ``demoset.robot`` (moved to the config's dtype/device).
+    demoset : lfd.learning.demos.DemoSet (its ``ground_truth`` is never read).
+    kin : lfd.robot.kinematics.KinematicModel of ``demoset.robot`` (moved to the config's dtype/device).
     config : FitConfig (defaults when None).
     callback : called as ``callback(event: dict)`` after every EM iteration with keys
         ``stage`` ('restart' | 'refit'), ``restart``, ``iteration``, ``loss``, ``tool``, ``env``
         (numpy), ``landmarks`` (names), ``alignments``, ``mu``, ``sigma_inv``.
-    on_restart : called as ``on_restart(progress: lfd.checkpoint.FitProgress)`` after every
-        restart, finished or dropped (``lfd.checkpoint.save_checkpoint`` stores it).
+    on_restart : called as ``on_restart(progress: lfd.learning.checkpoint.FitProgress)`` after every
+        restart, finished or dropped (``lfd.learning.checkpoint.save_checkpoint`` stores it).
     resume : a ``FitProgress`` of an earlier fit with the same config and demonstrations; its
         restarts are not run again; the starts come from ``initial_guesses``, so the result
         equals an uninterrupted fit's.
@@ -259,7 +259,7 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
     ValueError
         bad settings, demonstrations too short for the time steps, a mode that needs
         ``demoset.task`` without one, or every restart failing.
-    lfd.checkpoint.CheckpointError (a ValueError)
+    lfd.learning.checkpoint.CheckpointError (a ValueError)
         ``resume`` made for other demonstrations or settings.
     """
     cfg = config or FitConfig()
@@ -296,7 +296,7 @@ def _restore(progress: FitProgress, data: FitData, dtype, device):
 
 def occupancy_note(eff: np.ndarray, n_demos: int) -> str | None:
     """The fit's warning when its steps rest on few demonstrations (``eff (T,)``, see
-    ``lfd.dtw.effective_demos``): median under a third of ``n_demos``, with 4 or more."""
+    ``lfd.learning.dtw.effective_demos``): median under a third of ``n_demos``, with 4 or more."""
     if n_demos < 4 or float(np.median(eff)) >= n_demos / 3:
         return None
     return (f"steps rest on few demonstrations: median {np.median(eff):.1f} of {n_demos} effective "

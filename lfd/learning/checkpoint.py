@@ -145,7 +145,7 @@ def demos_fingerprint(demoset) -> str:
 
 @dataclass(frozen=True)
 class FitProgress:
-    """The restarts of a fit finished so far (``lfd.learn.fit`` reports one after each restart).
+    """The restarts of a fit finished so far (``lfd.learning.learn.fit`` reports one after each restart).
 
     restart_losses : per finished restart, per observation; ``nan`` for a dropped one.
     best_state : tensors ``STATE_TENSORS`` of the best restart (``alignment (N,)`` int64,

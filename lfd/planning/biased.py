@@ -1,7 +1,7 @@
 """Biased samples of the task model: where the model wants the robot for given landmarks.
 
 Pure functions of a ``TaskModel`` (with its ``kin``) and the landmark poses, used by
-``lfd.task_planner.TaskPlanner`` to grow its roadmap: ``biased_configurations`` draws sampled task
+``lfd.planning.task_planner.TaskPlanner`` to grow its roadmap: ``biased_configurations`` draws sampled task
 executions as chains of configurations, ``project_to_model`` matches a configuration to a sampled
 feature vector in a step's learned metric, and ``chain_edges`` joins consecutive samples of a chain.
 """
@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from lfd.ik import IKConfig, solve_ik
-from lfd.model import TaskModel
+from lfd.learning.model import TaskModel
+from lfd.robot.ik import IKConfig, solve_ik
 
 __all__ = ["biased_configurations", "chain_edges", "project_to_model"]
 

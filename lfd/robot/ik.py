@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import torch
 
-from lfd.kinematics import KinematicModel
+from lfd.robot.kinematics import KinematicModel
 
 __all__ = [
     "IKConfig",

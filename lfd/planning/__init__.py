@@ -1,0 +1,1 @@
+"""Planning a learned task: the roadmap, biased sampling, step and edge costs, the spatiotemporal search."""
