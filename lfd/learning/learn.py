@@ -315,26 +315,22 @@ def _progress(cfg, fingerprint, histories, losses, iters, notes, best) -> FitPro
                        best_restart=None if best is None else best[0], best_state=state)
 
 
-def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=None) -> FitResult:
-    t0 = time.perf_counter()
-    # checkpoints name the demonstrations as given; the fit sees them subsampled
-    fingerprint = demos_fingerprint(demoset) if on_restart is not None else ""
-    demoset = demoset.subsample(cfg.subsample)
-    names = tuple(demoset.landmark_names)
-    Z, T = len(names), cfg.time_steps
-    need = min_samples(T, cfg.offsets)
+def _check_inputs(demoset, cfg: FitConfig) -> None:
+    """``ValueError`` for demonstrations too short for the model, or a fixed landmark choice
+    without the task.json it needs."""
+    need = min_samples(cfg.time_steps, cfg.offsets)
     short = [d.name or str(i) for i, d in enumerate(demoset.demos) if d.n_samples < need]
     if short:
         stride = f" after keeping 1 sample in {cfg.subsample} (FitConfig.subsample)" if cfg.subsample > 1 else ""
         raise ValueError(f"demonstration(s) {short} have fewer than {need} samples{stride}, too few for "
-                         f"{T} time steps with offsets {cfg.offsets}")
+                         f"{cfg.time_steps} time steps with offsets {cfg.offsets}")
     if (cfg.tool == "tip" or cfg.env == "bowl") and demoset.task is None:
         raise ValueError(f"tool={cfg.tool!r}, env={cfg.env!r} need the demonstrations' task.json")
-    data = FitData(demoset, kin, dtype, device)
-    t_fk = time.perf_counter() - t0
-    torch.manual_seed(cfg.seed)
 
-    learn_tool, learn_env = cfg.tool == "learn", cfg.env == "learn"
+
+def _fixed_landmarks(demoset, cfg: FitConfig) -> tuple[tuple | None, np.ndarray | None]:
+    """The tool point ``(3,)`` and the environment weights ``(Z,)`` the variant fixes (None:
+    learned)."""
     fixed_tool = {"gripper": (0.0, 0.0, 0.0), "tip": None, "learn": None}[cfg.tool]
     if cfg.tool == "tip":
         fixed_tool = demoset.task.manual_tool_point
@@ -345,82 +341,129 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
             raise ValueError(f"env='bowl' fixes the environment landmark to the task's reference_landmark "
                              f"{ref!r} (task.json), which is not among the sensed landmarks "
                              f"{list(demoset.landmark_names)}")
-        fixed_env = np.zeros(Z)
+        fixed_env = np.zeros(len(demoset.landmark_names))
         fixed_env[demoset.landmark_index(ref)] = 1.0
+    return fixed_tool, fixed_env
 
-    def emit(stage, r, lm_names):
-        def on_iter(it, loss, state):
-            if callback is None:
-                return
-            tool, w, mu, sigma_inv, _log_trans, align = state
-            callback({"stage": stage, "restart": r, "iteration": it, "loss": loss,
-                      "tool": tool.cpu().numpy(), "env": w.cpu().numpy(), "landmarks": lm_names,
-                      "alignments": align, "mu": mu, "sigma_inv": sigma_inv})
-        return on_iter
 
-    fitter = EMFitter(data, cfg, dtype, device, list(range(Z)))
-    histories: list[tuple] = []
-    losses: list[float] = []
-    iters: list[int] = []
-    notes: list[str] = []
+@dataclass
+class _RestartLog:
+    """What the restarts and the refit produced so far: per EM run its loss history and iterations,
+    per restart its final loss (nan: dropped), notes, the best restart ``(r, state)``."""
+    histories: list = field(default_factory=list)
+    losses: list = field(default_factory=list)
+    iters: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
     best: tuple | None = None
-    first = 0
+    first: int = 0  # restarts done before a resumed checkpoint
+
+    def note(self, text: str) -> None:
+        self.notes.append(text)
+        warnings.warn(text, RuntimeWarning)
+
+
+def _emitter(callback, stage: str, r: int, lm_names):
+    """The EM's per-iteration hook that reports to ``callback`` (None: nothing)."""
+    def on_iter(it, loss, state):
+        if callback is None:
+            return
+        tool, w, mu, sigma_inv, _log_trans, align = state
+        callback({"stage": stage, "restart": r, "iteration": it, "loss": loss,
+                  "tool": tool.cpu().numpy(), "env": w.cpu().numpy(), "landmarks": lm_names,
+                  "alignments": align, "mu": mu, "sigma_inv": sigma_inv})
+    return on_iter
+
+
+def _run_restarts(demoset, data: FitData, cfg: FitConfig, fixed, callback, dtype, device, on_restart,
+                  resume, fingerprint: str) -> _RestartLog:
+    """The EM from ``cfg.restarts`` initial guesses (those a resumed checkpoint finished are
+    skipped, not repeated); ``on_restart`` gets the progress after each."""
+    names = tuple(demoset.landmark_names)
+    Z = len(names)
+    fixed_tool, fixed_env = fixed
+    learn_tool, learn_env = cfg.tool == "learn", cfg.env == "learn"
+    log = _RestartLog()
     if resume is not None:
-        histories, losses = list(resume.loss_history), list(resume.restart_losses)
-        iters, notes, first = list(resume.em_iterations), list(resume.notes), resume.restarts_done
-        best = _restore(resume, data, dtype, device)
-    starts = initial_guesses(cfg.seed, data.lengths, T, Z, cfg, fixed_tool, fixed_env,
+        log = _RestartLog(list(resume.loss_history), list(resume.restart_losses), list(resume.em_iterations),
+                          list(resume.notes), _restore(resume, data, dtype, device), resume.restarts_done)
+    fitter = EMFitter(data, cfg, dtype, device, list(range(Z)))
+    starts = initial_guesses(cfg.seed, data.lengths, cfg.time_steps, Z, cfg, fixed_tool, fixed_env,
                              series=[d.q for d in demoset.demos])
     for r, (align, tool0, w0) in enumerate(itertools.islice(starts, cfg.restarts)):
-        if r < first:  # finished before the checkpoint: its draws are skipped, not repeated
+        if r < log.first:
             continue
         try:
             state, hist = fitter.em(torch.as_tensor(tool0, dtype=dtype, device=device),
                                     torch.as_tensor(w0, dtype=dtype, device=device), align,
-                                    learn_tool, learn_env, emit("restart", r, names))
+                                    learn_tool, learn_env, _emitter(callback, "restart", r, names))
         except EM_FAILURES as e:
-            notes.append(f"restart {r} dropped: {e}")
-            warnings.warn(notes[-1], RuntimeWarning)
-            histories.append(())
-            losses.append(float("nan"))
-            iters.append(0)
+            log.note(f"restart {r} dropped: {e}")
+            log.histories.append(())
+            log.losses.append(float("nan"))
+            log.iters.append(0)
         else:
-            histories.append(tuple(hist))
-            losses.append(hist[-1])
-            iters.append(len(hist))
-            if best is None or hist[-1] < losses[best[0]]:
-                best = (r, state)
+            log.histories.append(tuple(hist))
+            log.losses.append(hist[-1])
+            log.iters.append(len(hist))
+            if log.best is None or hist[-1] < log.losses[log.best[0]]:
+                log.best = (r, state)
         if on_restart is not None:
-            on_restart(_progress(cfg, fingerprint, histories, losses, iters, notes, best))
-    if best is None:
-        raise ValueError(f"every one of the {cfg.restarts} restarts failed: {'; '.join(notes)}")
-    best_r, state = best
-    t_restarts = time.perf_counter() - t0 - t_fk
+            on_restart(_progress(cfg, fingerprint, log.histories, log.losses, log.iters, log.notes, log.best))
+    if log.best is None:
+        raise ValueError(f"every one of the {cfg.restarts} restarts failed: {'; '.join(log.notes)}")
+    return log
 
+
+def _prune_and_refit(data: FitData, cfg: FitConfig, names, fixed_env, log: _RestartLog, callback, dtype, device):
+    """The best restart's state with the landmarks weighing less than ``cfg.prune_threshold``
+    dropped and the EM run again on the rest (a fixed environment landmark: only it kept).
+    Returns ``(state, kept landmark indices, final loss, the EMFitter of the kept landmarks)``."""
+    assert log.best is not None
+    best_r, state = log.best
     tool, w, mu, sigma_inv, log_trans, align = state
-    env_before = {n: float(x) for n, x in zip(names, w.cpu().numpy())}
+    Z = len(names)
     kept = list(range(Z))
-    final_loss = losses[best_r]
-    if learn_env and Z > 1:
-        kept = [i for i in range(Z) if abs(float(w[i])) >= cfg.prune_threshold]
-        if not kept:
-            kept = [int(w.abs().argmax())]
+    final_loss = log.losses[best_r]
+    fitter = EMFitter(data, cfg, dtype, device, kept)
+    if cfg.env == "learn" and Z > 1:
+        kept = [i for i in range(Z) if abs(float(w[i])) >= cfg.prune_threshold] or [int(w.abs().argmax())]
         if len(kept) < Z:
             fitter = EMFitter(data, cfg, dtype, device, kept)
-            wk = w[kept] / w[kept].sum()
             try:
-                state, hist = fitter.em(tool, wk, align, learn_tool, len(kept) > 1,
-                                        emit("refit", best_r, tuple(names[i] for i in kept)))
-                histories.append(tuple(hist))
-                iters.append(len(hist))
-                tool, w, mu, sigma_inv, log_trans, align = state
-                final_loss = hist[-1]
+                state, hist = fitter.em(tool, w[kept] / w[kept].sum(), align, cfg.tool == "learn", len(kept) > 1,
+                                        _emitter(callback, "refit", best_r, tuple(names[i] for i in kept)))
             except EM_FAILURES as e:
                 raise ValueError(f"refit after pruning to {[names[i] for i in kept]} failed: {e}") from e
+            log.histories.append(tuple(hist))
+            log.iters.append(len(hist))
+            final_loss = hist[-1]
     elif fixed_env is not None:
         kept = [int(np.argmax(fixed_env))]
-        w = w[kept]
+        state = (tool, w[kept], mu, sigma_inv, log_trans, align)
         fitter = EMFitter(data, cfg, dtype, device, kept)
+    return state, kept, final_loss, fitter
+
+
+def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=None) -> FitResult:
+    t0 = time.perf_counter()
+    # checkpoints name the demonstrations as given; the fit sees them subsampled
+    fingerprint = demos_fingerprint(demoset) if on_restart is not None else ""
+    demoset = demoset.subsample(cfg.subsample)
+    names = tuple(demoset.landmark_names)
+    _check_inputs(demoset, cfg)
+    fixed = _fixed_landmarks(demoset, cfg)
+    data = FitData(demoset, kin, dtype, device)
+    t_fk = time.perf_counter() - t0
+    torch.manual_seed(cfg.seed)
+
+    log = _run_restarts(demoset, data, cfg, fixed, callback, dtype, device, on_restart, resume, fingerprint)
+    assert log.best is not None
+    best_r = log.best[0]
+    env_before = {n: float(x) for n, x in zip(names, log.best[1][1].cpu().numpy())}
+    t_restarts = time.perf_counter() - t0 - t_fk
+
+    state, kept, final_loss, fitter = _prune_and_refit(data, cfg, names, fixed[1], log, callback, dtype, device)
+    tool, w, mu, sigma_inv, log_trans, align = state
     finite = all(bool(torch.isfinite(x).all()) for x in (tool, w, mu, sigma_inv))
     if not (math.isfinite(final_loss) and finite and bool((log_trans < math.inf).all())):  # -inf: forbidden
         raise ValueError("the fit ended with non-finite values (NaN or inf) in the model; no model is returned")
@@ -429,14 +472,12 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
         _, A = data.features(tool, w, fitter.T_lm)
         det = torch.linalg.det(A).abs().cpu().numpy()
     if (det < 0.5).any() or (det > 2.0).any():
-        notes.append(f"degenerate virtual landmark: |det A| of K_virt^-1 ranges {det.min():.3g}..{det.max():.3g} "
-                     f"(1 for a rigid frame); the mixture shrinks or stretches the task features")
-        warnings.warn(notes[-1], RuntimeWarning)
-    eff = effective_demos(align, T)
+        log.note(f"degenerate virtual landmark: |det A| of K_virt^-1 ranges {det.min():.3g}..{det.max():.3g} "
+                 f"(1 for a rigid frame); the mixture shrinks or stretches the task features")
+    eff = effective_demos(align, cfg.time_steps)
     note = occupancy_note(eff, len(align))
     if note:
-        notes.append(note)
-        warnings.warn(notes[-1], RuntimeWarning)
+        log.note(note)
     kept_names = tuple(names[i] for i in kept)
     task = replace(demoset.task, subsample=1) if demoset.task is not None else None  # its stride is spent
     model = TaskModel(tool, w, mu, sigma_inv, log_trans, kept_names, demoset.robot, task,
@@ -447,11 +488,11 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
                                "volume_prior": cfg.volume_prior, "trans_floor": cfg.trans_floor,
                                "m_step": cfg.m_step, "seed": cfg.seed, "subsample": cfg.subsample})
     total = time.perf_counter() - t0
-    return FitResult(model=model, loss_history=tuple(histories), em_iterations=tuple(iters),
-                     final_loss=float(final_loss), restart_losses=tuple(losses), best_restart=best_r,
+    return FitResult(model=model, loss_history=tuple(log.histories), em_iterations=tuple(log.iters),
+                     final_loss=float(final_loss), restart_losses=tuple(log.losses), best_restart=best_r,
                      kept_landmarks=kept_names, env_before_pruning=env_before, alignments=tuple(align),
                      virtual_det=tuple(float(x) for x in det), effective_demos=tuple(float(x) for x in eff),
-                     warnings=tuple(notes),
+                     warnings=tuple(log.notes),
                      timings={"fk_s": t_fk, "restarts_s": t_restarts,
                               "refit_s": total - t_fk - t_restarts, "total_s": total},
-                     resumed_restarts=first)
+                     resumed_restarts=log.first)
