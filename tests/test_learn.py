@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from lfd.robot.kinematics import KinematicModel
-from lfd.learning.learn import FitConfig, _Data, _Fitter, fit, initial_guesses
+from lfd.learning.em import EMFitter, FitData
+from lfd.learning.learn import FitConfig, fit, initial_guesses
 from lfd.learning.model import step_nll_tensor
 from lfd.learning.synthetic import make_synthetic
 from lfd.learning.tasks import POWDER
@@ -27,8 +28,8 @@ def synth(kin):
 
 
 def _fitter(ds, kin, cfg, dtype=torch.float64):
-    data = _Data(ds, kin, dtype, torch.device("cpu"))
-    return data, _Fitter(data, cfg, dtype, torch.device("cpu"), list(range(len(ds.landmark_names))))
+    data = FitData(ds, kin, dtype, torch.device("cpu"))
+    return data, EMFitter(data, cfg, dtype, torch.device("cpu"), list(range(len(ds.landmark_names))))
 
 
 def test_config_options_are_validated():

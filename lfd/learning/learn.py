@@ -15,7 +15,8 @@ env weights are ``w = w_ref + B u`` with ``B (Z, Z-1)`` an orthonormal basis of 
 (the tangent space of the constraint, Sec. IV-A); weights may be negative. After each M-step
 ``w`` is re-projected to sum exactly to 1 (to rounding).
 
-This module holds the settings, the restarts and pruning; the EM steps are in ``lfd.learning.em``.
+This module holds the restarts and pruning; the settings and the result are in
+``lfd.learning.fitconfig``, the EM steps in ``lfd.learning.em``.
 After each restart ``fit`` reports a ``lfd.learning.checkpoint.FitProgress`` (``on_restart``) and can
 continue from one (``resume``): the restarts' starts come from one generator per seed
 (``initial_guesses``), so a resumed fit ends exactly where an uninterrupted one does.
@@ -35,7 +36,6 @@ import itertools
 import math
 import time
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -44,158 +44,10 @@ import torch
 from lfd.learning.checkpoint import CheckpointError, FitProgress, config_record, demos_fingerprint
 from lfd.learning.dtw import effective_demos, linear_alignment, min_samples, random_alignment, reference_alignments
 from lfd.learning.em import EM_FAILURES, EMFitter, FitData
-from lfd.learning.model import COVARIANCES, OFFSETS, TaskModel
-from lfd.learning.tasks import check_stride, check_whole
+from lfd.learning.fitconfig import DTYPES, ENV_MODES, INITS, M_STEPS, TOOL_MODES, FitConfig, FitResult
+from lfd.learning.model import TaskModel
 
 __all__ = ["ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitResult", "fit", "initial_guesses"]
-
-_Data, _Fitter = FitData, EMFitter  # former private names (tests reach in)
-
-TOOL_MODES = ("learn", "gripper", "tip")
-ENV_MODES = ("learn", "bowl")
-M_STEPS = ("profile", "joint")
-INITS = ("reference", "random", "linear")
-DTYPES = {"float64": torch.float64, "float32": torch.float32}
-
-
-@dataclass(frozen=True)
-class FitConfig:
-    """Settings of ``fit``. Lengths in metres, angles in radians, losses in Eq. 3 units.
-
-    tool : 'learn' | 'gripper' (fixed at the end-effector origin) | 'tip' (task.manual_tool_point).
-    env : 'learn' | 'bowl' (one-hot on task.reference_landmark).
-    covariance : 'block' (default: joints independent of task features) | 'full' (the paper).
-        With 'full', zeta enters the likelihood only through the task features' residual
-        *given* the joints; as the tool point's world position is a smooth function of q,
-        changing the tool point is largely absorbed by that regression and the tool point is
-        nearly unidentifiable (measured: 17-45 cm error vs 0.5-2.2 cm for 'block' on synthetic
-        data with known truth, see benchmarks/learning.py --compare).
-    subsample : learn from every ``subsample``-th sample of each demonstration
-        (``DemoSet.subsample``; the model's ``task.dt`` becomes ``subsample`` times the
-        demonstrations'). The paper's remedy for its 50 Hz pour demonstrations (Sec. VI-B).
-    logdet_scale : ``s`` in ``s log|Sigma|`` (1 = maximum likelihood).
-    floor_joint, floor_task : the variance-floor prior's standard deviations (lfd.learning.priors).
-    floor_weight : its pseudo-observations ``nu``; None = mean observations per time step.
-    volume_prior : add ``-2 log|det A|`` per observation (lfd.learning.priors); zero for aligned frames.
-    trans_floor : smallest probability of a permitted transition.
-    init : how each restart's first alignments are drawn. 'reference' (default): every
-        demonstration is warped by DTW of its joint angles onto one reference demonstration
-        (the median-length one, uniformly split into steps, for the first restart; a random
-        one with a random warp for the others), so a step starts as the same phase everywhere.
-        'linear': every restart from the uniform time warp (each demonstration split into T
-        equal parts; restarts differ in the tool point's and weights' starts); with ``band=0``
-        the alignment stays there, so every step rests on every demonstration alike.
-        'random': an independent random warp per demonstration, as in the paper. Measured on
-        the 50 Hz pour set: with 'random' the EM settled with each demonstration's whole
-        pouring phase on one step, a different step per demonstration (see README).
-    band : the E-step keeps every sample within ``band`` steps of the restart's starting
-        alignment (a Sakoe-Chiba band; None = unconstrained, as in the paper). Hard EM with an
-        unconstrained DTW drifts to alignments of higher likelihood that squeeze one
-        demonstration's whole pouring phase onto a single broad step; with band 1 every step
-        of the 50 Hz pour set keeps one phase (see README, "Learning").
-    tool_search, tool_grid : before each restart's first M-step the tool point's start is the
-        best of the current guess and a ``tool_grid^3`` grid spanning ``+-tool_search`` m per
-        axis, by the profiled loss (0 disables); LBFGS is local and the loss is not convex in it.
-    em_tol : stop when the per-observation loss changes less (or alignments repeat).
-    num_threads : torch CPU threads during the fit (restored afterwards); the tensors are
-        small, so one thread is fastest and immune to oversubscription; None leaves it alone.
-    """
-
-    time_steps: int = 24
-    subsample: int = 1
-    offsets: tuple[int, ...] = OFFSETS
-    restarts: int = 4
-    max_em_iters: int = 25
-    em_tol: float = 1e-5
-    lbfgs_max_iter: int = 50
-    lbfgs_history: int = 20
-    lbfgs_tol_grad: float = 1e-7
-    joint_max_iter: int = 200
-    tool: str = "learn"
-    env: str = "learn"
-    covariance: str = "block"
-    m_step: str = "profile"
-    prune_threshold: float = 0.05
-    seed: int = 0
-    device: str = "cpu"
-    dtype: str = "float64"
-    logdet_scale: float = 1.0
-    floor_joint: float = 1e-3
-    floor_task: float = 1e-3
-    floor_weight: float | None = None
-    volume_prior: bool = True
-    trans_floor: float = 0.01
-    num_threads: int | None = 1
-    tool_init_std: float = 0.15
-    init: str = "reference"
-    tool_search: float = 0.2
-    tool_grid: int = 5
-    band: int | None = 1
-    zeta_prior: Callable | None = field(default=None, compare=False)
-    eta_prior: Callable | None = field(default=None, compare=False)
-
-    def __post_init__(self):
-        for name, allowed in (("tool", TOOL_MODES), ("env", ENV_MODES), ("covariance", COVARIANCES),
-                              ("m_step", M_STEPS), ("init", INITS), ("dtype", tuple(DTYPES))):
-            value = getattr(self, name)
-            if value not in allowed:
-                raise ValueError(f"FitConfig.{name} must be one of {', '.join(allowed)}; got {value!r}")
-        try:  # any torch device string: cpu, cuda, cuda:1, mps, ...
-            torch.device(self.device)
-        except (RuntimeError, ValueError, TypeError) as e:
-            raise ValueError(f"FitConfig.device must be a torch device string (cpu, cuda, cuda:1, mps, ...); "
-                             f"got {self.device!r}") from e
-        if int(self.time_steps) < 2:
-            raise ValueError(f"FitConfig.time_steps must be at least 2, got {self.time_steps}")
-        if not self.tool_search >= 0 or int(self.tool_grid) < 1:
-            raise ValueError(f"FitConfig.tool_search must be >= 0 and tool_grid >= 1, got "
-                             f"{self.tool_search}, {self.tool_grid}")
-        if self.band is not None:  # wider than the model would constrain nothing: that is None
-            object.__setattr__(self, "band", check_whole(self.band, "FitConfig.band", 0))
-            if self.band > int(self.time_steps):
-                raise ValueError(f"FitConfig.band must be at most time_steps ({self.time_steps}) or None "
-                                 f"(unconstrained), got {self.band}")
-        if check_whole(self.seed, "FitConfig.seed", 0) >= 2**63:  # numpy and torch both take it
-            raise ValueError(f"FitConfig.seed must be a whole number in [0, 2**63), got {self.seed!r}")
-        object.__setattr__(self, "subsample", check_stride(self.subsample, "FitConfig.subsample"))
-        if int(self.restarts) < 1:
-            raise ValueError(f"FitConfig.restarts must be at least 1, got {self.restarts}")
-        if isinstance(self.offsets, (str, bytes)) or not len(self.offsets):
-            raise ValueError(f"FitConfig.offsets must be a sequence of whole numbers, got {self.offsets!r}")
-        object.__setattr__(self, "offsets", tuple(check_whole(k, "each of FitConfig.offsets", 0)
-                                                  for k in self.offsets))
-        if len(set(self.offsets)) != len(self.offsets) or not {0, 1} <= set(self.offsets):
-            raise ValueError(f"FitConfig.offsets must be distinct, non-negative and include 0 and 1 (a "
-                             f"sample may stay in its step or move to the next); got {self.offsets}")
-        if not all(math.isfinite(x) and x > 0 for x in (self.floor_joint, self.floor_task)):
-            raise ValueError(f"FitConfig.floor_joint and floor_task must be positive standard deviations, "
-                             f"got {self.floor_joint}, {self.floor_task}")
-        if not 0 <= self.prune_threshold < 1:
-            raise ValueError(f"FitConfig.prune_threshold must be in [0, 1), got {self.prune_threshold}")
-        if not 0 < self.trans_floor < 1.0 / len(self.offsets):
-            raise ValueError(f"FitConfig.trans_floor must be in (0, 1/K), got {self.trans_floor}")
-
-
-@dataclass(frozen=True)
-class FitResult:
-    """What ``fit`` found. Losses are per observation, Eq. 3 units (negative log posterior)."""
-
-    model: TaskModel
-    loss_history: tuple[tuple[float, ...], ...]  # per restart, then the refit after pruning
-    em_iterations: tuple[int, ...]
-    final_loss: float
-    restart_losses: tuple[float, ...]  # nan for a dropped restart
-    best_restart: int
-    kept_landmarks: tuple[str, ...]
-    env_before_pruning: dict
-    alignments: tuple[np.ndarray, ...]
-    virtual_det: tuple[float, ...]  # |det A| of K_virt^-1's linear part, per demonstration
-    effective_demos: tuple[float, ...]  # per step, in the final alignment (lfd.learning.dtw.effective_demos);
-    # a warning when the median is under M / 3 (with M >= 4 demonstrations)
-    warnings: tuple[str, ...]
-    timings: dict
-    resumed_restarts: int = 0  # restarts taken from a checkpoint instead of run
-
 
 def _resolve(cfg: FitConfig):
     if str(cfg.device).startswith("cuda") and not torch.cuda.is_available():
