@@ -306,36 +306,11 @@ def cli() -> None:
     run_main(main, prog=PROG)
 
 
-def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
+def _fit_config(args, ds, demos_dir: Path):
+    """The ``FitConfig`` of the command's options, defaults from the demonstrations' task.json;
+    ``UsageError`` for a bad combination."""
+    from lfd.learning.learn import FitConfig
 
-    from lfd.learning.checkpoint import (
-        CheckpointError,
-        atomic_write_text,
-        checkpoint_path,
-        config_record,
-        demos_fingerprint,
-        load_checkpoint,
-        remove_checkpoint,
-        save_checkpoint,
-    )
-    from lfd.learning.demos import load_demos
-    from lfd.learning.learn import FitConfig, fit
-    from lfd.robot.kinematics import KinematicModel
-
-    resumed = None
-    if args.resume:
-        try:
-            resumed = load_checkpoint(out)
-        except CheckpointError as e:
-            raise UsageError(f"--resume: {e}") from e
-        progress["done"] = resumed.restarts_done
-    demos_dir = args.demos or default_demos(args.task)
-    if args.demos is None:
-        ensure_demos(args.task, demos_dir, args.seed)
-    _check_device_available(args.device)
-    ds = load_demos(demos_dir, time_steps=args.time_steps)
-    if ds.task is not None and ds.task.name != args.task:
-        raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")
     kw = {"tool": args.tool, "env": args.env, "seed": args.seed, "device": args.device}
     for key, val in (("restarts", args.restarts), ("covariance", args.covariance), ("init", args.init),
                      ("offsets", tuple(args.offsets) if args.offsets else None),
@@ -356,6 +331,65 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
         cfg = FitConfig(**kw)
     except ValueError as e:
         raise UsageError(str(e)) from e
+    return cfg
+
+
+def _summary(result, ds, cfg, n_obs: int) -> dict:
+    """``summary.json``: the fit's figures, and the errors against a hidden ground truth when the
+    demonstrations carry one (evaluation only: it never reaches the fit)."""
+    m = result.model
+    summary = {"learning_time_s": result.timings["total_s"], "n_demos": len(ds.demos),
+               "n_observations": n_obs, "subsample": cfg.subsample, "dt": float(m.task.dt) if m.task else None,
+               "time_steps": cfg.time_steps, "restarts": cfg.restarts,
+               "covariance": cfg.covariance, "seed": cfg.seed, "final_loss": result.final_loss,
+               "restart_losses": [x if np.isfinite(x) else None for x in result.restart_losses],
+               "em_iterations": list(result.em_iterations), "best_restart": result.best_restart,
+               "resumed_restarts": result.resumed_restarts,
+               "tool_point": m.tool.cpu().tolist(),
+               "env_weights": {n: float(x) for n, x in zip(m.landmark_names, m.env.cpu().tolist())},
+               "env_weights_before_pruning": result.env_before_pruning,
+               "kept_landmarks": list(result.kept_landmarks), "virtual_det": list(result.virtual_det),
+               "effective_demos_per_step": [round(x, 2) for x in result.effective_demos],
+               "warnings": list(result.warnings), "timings": result.timings}
+    gt = ds.ground_truth  # evaluation only: never passed to the fit
+    if gt:
+        if "tool_point" in gt:
+            summary["tool_point_error_m"] = float(np.linalg.norm(np.asarray(gt["tool_point"]) - m.tool.cpu().numpy()))
+        if "bowl_landmark" in gt:
+            summary["bowl_weight"] = result.env_before_pruning.get(gt["bowl_landmark"])
+    return summary
+
+
+def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
+    from lfd.learning.checkpoint import (
+        CheckpointError,
+        atomic_write_text,
+        checkpoint_path,
+        config_record,
+        demos_fingerprint,
+        load_checkpoint,
+        remove_checkpoint,
+        save_checkpoint,
+    )
+    from lfd.learning.demos import load_demos
+    from lfd.learning.learn import fit
+    from lfd.robot.kinematics import KinematicModel
+
+    resumed = None
+    if args.resume:
+        try:
+            resumed = load_checkpoint(out)
+        except CheckpointError as e:
+            raise UsageError(f"--resume: {e}") from e
+        progress["done"] = resumed.restarts_done
+    demos_dir = args.demos or default_demos(args.task)
+    if args.demos is None:
+        ensure_demos(args.task, demos_dir, args.seed)
+    _check_device_available(args.device)
+    ds = load_demos(demos_dir, time_steps=args.time_steps)
+    if ds.task is not None and ds.task.name != args.task:
+        raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")
+    cfg = _fit_config(args, ds, demos_dir)
     progress["restarts"] = cfg.restarts
     if resumed is not None:
         why = resumed.mismatch(config_record(cfg), demos_fingerprint(ds))
@@ -387,7 +421,7 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
 
     try:
         with warnings.catch_warnings():  # the fit's RuntimeWarnings are shown by on_restart / at the end
-            warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"lfd\.learn")
+            warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"lfd\.learning\.learn")
             result = fit(ds, kin, cfg, callback=log, on_restart=on_restart, resume=resumed)
         log.final(result)
     except ValueError as e:  # every restart failed, the refit failed, a non-finite model
@@ -395,25 +429,7 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
     finally:
         log.close()
     m = result.model
-    summary = {"learning_time_s": result.timings["total_s"], "n_demos": len(ds.demos),
-               "n_observations": n_obs, "subsample": cfg.subsample, "dt": float(m.task.dt) if m.task else None,
-               "time_steps": cfg.time_steps, "restarts": cfg.restarts,
-               "covariance": cfg.covariance, "seed": cfg.seed, "final_loss": result.final_loss,
-               "restart_losses": [x if np.isfinite(x) else None for x in result.restart_losses],
-               "em_iterations": list(result.em_iterations), "best_restart": result.best_restart,
-               "resumed_restarts": result.resumed_restarts,
-               "tool_point": m.tool.cpu().tolist(),
-               "env_weights": {n: float(x) for n, x in zip(m.landmark_names, m.env.cpu().tolist())},
-               "env_weights_before_pruning": result.env_before_pruning,
-               "kept_landmarks": list(result.kept_landmarks), "virtual_det": list(result.virtual_det),
-               "effective_demos_per_step": [round(x, 2) for x in result.effective_demos],
-               "warnings": list(result.warnings), "timings": result.timings}
-    gt = ds.ground_truth  # evaluation only: never passed to the fit
-    if gt:
-        if "tool_point" in gt:
-            summary["tool_point_error_m"] = float(np.linalg.norm(np.asarray(gt["tool_point"]) - m.tool.cpu().numpy()))
-        if "bowl_landmark" in gt:
-            summary["bowl_weight"] = result.env_before_pruning.get(gt["bowl_landmark"])
+    summary = _summary(result, ds, cfg, n_obs)
     with guard.critical():  # the model's files, each atomic, and never split by a signal
         m.save(out)
         atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")

@@ -408,8 +408,16 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
             continue
         planned_at = now
         replan("move", names, poses)
+    _settle_and_judge(world, contacts, result, s, step, frames)
+    return result
+
+
+def _settle_and_judge(world, contacts: _ContactLog, result: RunResult, s: ExecSettings, step: int,
+                      frames: list | None) -> None:
+    """After the last command (sim step ``step``): let the particles settle for ``settle_s``, then
+    judge the run as the paper does, into ``result``: a contact fails it, else the share of the
+    particles in the bowl must reach ``success_fraction``."""
     settle = int(s.settle_s / L.SIM_DT)
-    qdot = np.zeros_like(q_cmd)
     for k in range(settle):
         world.step(1)
         if k % 8 == 0:
@@ -428,4 +436,3 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
                          f"(needs {s.success_fraction:.0%})")
     else:
         result.success, result.reason = True, "ok"
-    return result
