@@ -52,6 +52,8 @@ setup(
         "sim": ["pybullet>=3.2.5", "tensorboard>=2.12", "matplotlib>=3.6", "imageio>=2.30", "tqdm>=4.60"],
         # ruff and mypy run in `make test` (their versions pinned in constraints.txt: their rules change)
         "test": ["pytest>=7", "hypothesis>=6", "psutil>=5", "ruff>=0.6", "mypy>=1.10"],
+        # evaluation sweeps as Ray tasks (lfd-plan --evaluate --executor ray)
+        "ray": ["ray>=2.9"],
     },
     entry_points={
         "console_scripts": CONSOLE_SCRIPTS,

@@ -58,7 +58,7 @@ def bench_scene(model, task: str, scenario) -> dict:
     from lfd.planning.task_planner import TaskPlanner
     from sim import layout as L
     from sim.collision import make_collision_fns
-    from sim.evaluate import planner_settings
+    from sim.runner import planner_settings
     from sim.world import World
 
     with World(task, scenario=scenario.placements, n_particles=0) as world:

@@ -52,7 +52,7 @@ def main() -> int:
     _run("lfd-plan", plan_cli.main,
          ["--evaluate", "--task", "powder", "--scenarios", "10", "--workers", "2",
           "--variants", *VARIANTS, "--demos", str(demos), "--out", str(runs / "powder" / "eval"),
-          "--models", str(runs / "powder" / "models"), "--video"])
+          "--models", str(runs / "powder" / "models"), "--video", "--resume"])
     print("\nmake demo: done.\n"
           "  demonstrations:   runs/demos/powder/ (picture: docs/demos.png)\n"
           "  models:           runs/powder/models/<tool>-<env>/ (model.pt, config.json, summary.json)\n"

@@ -1,8 +1,8 @@
 """Plan a learned task in a new scene, or evaluate every model variant on seeded scenarios.
 
     lfd-plan --model DIR [--scenario-seed S] [--roadmap-size N] [--latency L] [--gui] [--out DIR] [--plot]
-    lfd-plan --evaluate --task powder|pour [--scenarios N] [--seed S] [--workers K] [--latency L]
-             [--out DIR] [--video]
+    lfd-plan --evaluate --task powder|pour [--scenarios N] [--seed S | --seeds S,S,..] [--demo-seeds K,..]
+             [--workers K] [--executor local|ray [--address ADDR]] [--resume] [--latency L] [--out DIR] [--video]
 
 (``python plan.py`` is the same command.) Relative paths and the default output folders are
 taken from the current working directory.
@@ -10,9 +10,11 @@ taken from the current working directory.
 
 from __future__ import annotations
 
+import argparse
 import functools
 import json
 import sys
+import time
 from pathlib import Path
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
@@ -21,6 +23,17 @@ from sim.scenarios import MAX_BASE_SEED, MAX_SCENARIO_SEED
 __all__ = ["PROG", "build_parser", "cli", "main", "parse"]
 
 PROG = "lfd-plan"
+
+
+def _seed_list(text: str) -> tuple[int, ...]:
+    """``"0,1,2"`` -> ``(0, 1, 2)``: distinct non-negative integers."""
+    try:
+        seeds = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+    if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
+        raise argparse.ArgumentTypeError(f"expected distinct non-negative integers, got {text!r}")
+    return seeds
 
 
 def build_parser(prog: str = PROG) -> ArgumentParser:
@@ -44,8 +57,23 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     ap.add_argument("--task", choices=("powder", "pour"),
                     help="task to evaluate (default: none; required with --evaluate)")
     ap.add_argument("--scenarios", type=int, default=10, metavar="N", help="scenarios per variant")
-    ap.add_argument("--seed", type=int, default=0, metavar="S", help="base seed of the scenario set")
-    ap.add_argument("--workers", type=int, default=2, metavar="K", help="parallel processes")
+    seeds = ap.add_mutually_exclusive_group()
+    seeds.add_argument("--seed", type=int, default=None, metavar="S", help="base seed of the scenario set (default: 0)")
+    seeds.add_argument("--seeds", type=_seed_list, default=None, metavar="S,S,...",
+                       help="several scenario sets, a sweep: the table shows mean and spread over them "
+                            "(default: the one of --seed)")
+    ap.add_argument("--demo-seeds", type=_seed_list, default=(0,), metavar="K,K,...",
+                    help="demonstration draws to train and evaluate: 0 is --demos (or ./runs/demos/<task>), "
+                         "k > 0 a set the simulator draws with seed k (default: 0)")
+    ap.add_argument("--workers", type=int, default=2, metavar="K",
+                    help="parallel processes (with --executor ray and no --address: the local Ray's CPUs)")
+    ap.add_argument("--executor", choices=("local", "ray"), default="local",
+                    help="where the runs go: local processes, or Ray tasks (pip install 'lfd-landmarks[ray]')")
+    ap.add_argument("--address", default=None, metavar="ADDR",
+                    help="a running Ray cluster (ray start --head prints it; default: start a local Ray)")
+    ap.add_argument("--resume", action="store_true",
+                    help="continue the evaluation logged in --out, skipping finished runs (default: a folder "
+                         "that holds logged runs is refused)")
     ap.add_argument("--variants", nargs="+", default=None, metavar="TOOL+ENV",
                     help=f"subset of variants to run, tool and environment landmark as in train.py's --tool "
                          f"and --env (default: all of {', '.join(v.name for v in VARIANTS)})")
@@ -72,10 +100,16 @@ def parse(argv=None, prog: str = PROG):
         raise UsageError(f"--latency: {e}") from None
     if args.roadmap_size is not None and args.roadmap_size < 10:
         raise UsageError(f"--roadmap-size must be at least 10, got {args.roadmap_size}")
-    for opt, seed, top in (("--scenario-seed", args.scenario_seed, MAX_SCENARIO_SEED),
-                           ("--seed", args.seed, MAX_BASE_SEED)):
-        if not 0 <= seed < top:
-            raise UsageError(f"{opt} must be in [0, {top}), got {seed}")
+    seed_opt = "--seed" if args.seeds is None else "--seeds"
+    args.seeds = args.seeds or (0 if args.seed is None else args.seed,)
+    for opt, seeds, top in (("--scenario-seed", (args.scenario_seed,), MAX_SCENARIO_SEED),
+                            (seed_opt, args.seeds, MAX_BASE_SEED), ("--demo-seeds", args.demo_seeds, MAX_BASE_SEED)):
+        if not all(0 <= seed < top for seed in seeds):
+            raise UsageError(f"{opt} must be in [0, {top}), got {', '.join(map(str, seeds))}")
+    if args.address and args.executor != "ray":
+        raise UsageError("--address is for --executor ray")
+    if args.demos is not None and any(args.demo_seeds):
+        raise UsageError("--demo-seeds other than 0 are drawn by the simulator; they cannot be combined with --demos")
     if args.demos is not None and not args.demos.exists():
         raise UsageError(f"--demos {args.demos}: no such folder")
     if args.models is not None and args.models.exists() and not args.models.is_dir():
@@ -106,26 +140,31 @@ def main(argv=None, prog: str = PROG) -> int:
         unknown = [v for v in variants if v not in {x.name for x in VARIANTS}]
         if unknown:
             raise UsageError(f"--variants: unknown {unknown}; choose from {[v.name for v in VARIANTS]}")
-        check_models_for_task([model_dir_for(models, v) for v in VARIANTS if v.name in variants], args.task)
+        check_models_for_task([model_dir_for(models, v, k) for k in args.demo_seeds for v in VARIANTS
+                               if v.name in variants], args.task)
         out = writable_dir(args.out or Path("runs") / args.task / "eval")
         try:
             from tqdm import tqdm as progress
         except ImportError:
             progress = None
-        settings = EvalSettings(task=args.task, n_scenarios=args.scenarios, seed=args.seed,
-                                roadmap_size=args.roadmap_size, workers=args.workers, video=args.video,
-                                variants=variants, latency=args.latency)
+        settings = EvalSettings(task=args.task, n_scenarios=args.scenarios, seeds=args.seeds,
+                                demo_seeds=args.demo_seeds, roadmap_size=args.roadmap_size, workers=args.workers,
+                                video=args.video, variants=variants, latency=args.latency,
+                                executor=args.executor, address=args.address)
+        tic = time.perf_counter()
         try:
-            payload = evaluate(settings, out, models, args.demos, progress)
+            payload = evaluate(settings, out, models, args.demos, progress, resume=args.resume)
         except TrainingFailed as e:  # the training's own reason is in the message; no traceback of ours
             print(f"{prog}: error: {e}", file=sys.stderr)
             return e.returncode if e.returncode in (2, 130, 143) else 1
-        print(format_table(payload["variants"], args.task, settings.latency))
+        print(format_table(payload["variants"], args.task, settings.latency,
+                           cells=payload["spread"] if len(payload["cells"]) > 1 else None))
+        print(f"wall time {time.perf_counter() - tic:.0f} s, executor {settings.executor}")
         print(f"results: {out / 'results.json'}")
         return 0
 
-    from sim.evaluate import plan_scenario
     from sim.model_check import load_checked_model
+    from sim.runner import plan_scenario
     from sim.scenarios import draw_scenario
     _, task_name = load_checked_model(args.model)  # landmarks, robot, task: before any simulation
     out = writable_dir(args.out or args.model / "plans")

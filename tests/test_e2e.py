@@ -18,7 +18,8 @@ from lfd.learning.demos import load_demos
 from lfd.robot.kinematics import KinematicModel
 from lfd.learning.learn import FitConfig, fit
 from sim import layout as L
-from sim.evaluate import VARIANTS, run_one
+from sim.evaluate import VARIANTS
+from sim.runner import run_one
 from sim.scenarios import Scenario
 
 ROADMAP = 500

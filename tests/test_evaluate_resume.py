@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import sim.evaluate as ev
+import sim.report as report
 from sim.scenarios import draw_scenarios
 
 TASK = "powder"
@@ -38,7 +39,7 @@ def _cached_draws(monkeypatch):
 
 
 def _settings(**kw) -> ev.EvalSettings:
-    return ev.EvalSettings(task=TASK, n_scenarios=N, seed=0, roadmap_size=10, workers=1,
+    return ev.EvalSettings(task=TASK, n_scenarios=N, seeds=(0,), roadmap_size=10, workers=1,
                            variants=VARIANTS, **kw)
 
 
@@ -117,14 +118,14 @@ def test_interrupted_evaluation_resumes_with_only_the_missing_runs(tmp_path, mod
     first = FakeRunOne(interrupt_at=3)
     monkeypatch.setattr(ev, "run_one", first)
     with pytest.raises(KeyboardInterrupt):
-        ev.evaluate(_settings(), out, models)
+        ev.evaluate(_settings(), out, models, resume=True)
     assert first.calls == _all_pairs()[:2]
     assert _logged(out) == first.calls  # each finished run is on disk at once
     assert not (out / "results.json").exists()
 
     second = FakeRunOne()
     monkeypatch.setattr(ev, "run_one", second)
-    payload = ev.evaluate(_settings(), out, models)
+    payload = ev.evaluate(_settings(), out, models, resume=True)
     assert second.calls == _all_pairs()[2:]  # only the missing pairs, none twice
     assert sorted(_logged(out)) == sorted(_all_pairs())
     _check_results(out, payload)
@@ -138,7 +139,7 @@ def test_interrupted_evaluation_resumes_with_only_the_missing_runs(tmp_path, mod
 
     third = FakeRunOne()  # everything done: nothing runs, the table is rebuilt from the log
     monkeypatch.setattr(ev, "run_one", third)
-    assert ev.evaluate(_settings(), out, models)["variants"] == payload["variants"]
+    assert ev.evaluate(_settings(), out, models, resume=True)["variants"] == payload["variants"]
     assert third.calls == []
 
 
@@ -152,7 +153,7 @@ def test_preseeded_log_is_kept_and_counted(tmp_path, models, monkeypatch):
     (out / "runs.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     fake = FakeRunOne()
     monkeypatch.setattr(ev, "run_one", fake)
-    payload = ev.evaluate(_settings(), out, models)
+    payload = ev.evaluate(_settings(), out, models, resume=True)
     assert fake.calls == [p for p in pairs if p not in kept]
     _check_results(out, payload)
     # the pre-seeded rows (failures) are the ones counted, not re-run successes
@@ -170,7 +171,7 @@ def test_truncated_last_line_does_not_stop_the_resume(tmp_path, models, monkeypa
     (out / "runs.jsonl").write_text(whole + "\n" + cut)
     fake = FakeRunOne()
     monkeypatch.setattr(ev, "run_one", fake)
-    payload = ev.evaluate(_settings(), out, models)
+    payload = ev.evaluate(_settings(), out, models, resume=True)
     assert fake.calls == pairs[1:]
     _check_results(out, payload)
 
@@ -181,10 +182,10 @@ def test_run_after_a_truncated_line_is_not_lost(tmp_path, models, monkeypatch):
     pairs = _all_pairs()
     (out / "runs.jsonl").write_text(json.dumps(_row(*pairs[0])) + "\n" + json.dumps(_row(*pairs[1]))[:40])
     monkeypatch.setattr(ev, "run_one", FakeRunOne())
-    ev.evaluate(_settings(), out, models)
+    ev.evaluate(_settings(), out, models, resume=True)
     again = FakeRunOne()
     monkeypatch.setattr(ev, "run_one", again)
-    ev.evaluate(_settings(), out, models)
+    ev.evaluate(_settings(), out, models, resume=True)
     assert again.calls == []
 
 
@@ -194,10 +195,10 @@ def test_runs_of_another_latency_mode_are_run_again(tmp_path, models, monkeypatc
     paper's interval are redone."""
     out = tmp_path / "eval"
     monkeypatch.setattr(ev, "run_one", FakeRunOne())
-    ev.evaluate(_settings(), out, models)
+    ev.evaluate(_settings(), out, models, resume=True)
     again = FakeRunOne()
     monkeypatch.setattr(ev, "run_one", again)
-    payload = ev.evaluate(replace(_settings(), latency="none"), out, models)
+    payload = ev.evaluate(replace(_settings(), latency="none"), out, models, resume=True)
     assert again.calls == _all_pairs()
     assert payload["latency"] == "none"
     assert all(v["latency_mode"] == ["none"] for v in payload["variants"].values())
@@ -216,7 +217,7 @@ def test_runs_of_another_latency_mode_are_run_again(tmp_path, models, monkeypatc
     log.write_text("".join(json.dumps(r) + "\n" for r in old))
     third = FakeRunOne()
     monkeypatch.setattr(ev, "run_one", third)
-    ev.evaluate(replace(_settings(), latency="none"), out, models)
+    ev.evaluate(replace(_settings(), latency="none"), out, models, resume=True)
     assert third.calls == [(old[0]["variant"], old[0]["scenario"])]
     with pytest.raises(ValueError, match="latency must be"):
         replace(_settings(), latency="forever")
@@ -227,14 +228,14 @@ def test_runs_paced_before_the_clock_are_run_again(tmp_path, models, monkeypatch
     """Rows logged without ``pace`` were executed with the old per-visited-step timing: redone."""
     out = tmp_path / "eval"
     monkeypatch.setattr(ev, "run_one", FakeRunOne())
-    ev.evaluate(_settings(), out, models)
+    ev.evaluate(_settings(), out, models, resume=True)
     log = out / "runs.jsonl"
     rows = [json.loads(line) for line in log.read_text().splitlines()]
     rows[0].pop("pace")
     log.write_text("".join(json.dumps(r) + "\n" for r in rows))
     again = FakeRunOne()
     monkeypatch.setattr(ev, "run_one", again)
-    ev.evaluate(_settings(), out, models)
+    ev.evaluate(_settings(), out, models, resume=True)
     assert again.calls == [(rows[0]["variant"], rows[0]["scenario"])]
 
 
@@ -244,17 +245,17 @@ def test_summary_reaction_times_only_from_timed_runs():
     v = next(x for x in ev.VARIANTS if x.name == "learned+learned")
     old = _row(v.name, 0)  # replan_ms [1, 2], no update times
     new = {**_row(v.name, 1), "replan_ms": [3.0, 4.0], "replan_update_ms": [10.0, 30.0], "build_ms": 7.0}
-    s = ev.summarize([old, new], v, 1.0)
+    s = report.summarize([old, new], v, 1.0)
     assert s["replan_ms"]["median"] == pytest.approx(2.5)  # 1, 2, 3, 4
     assert s["reaction_ms"]["median"] == pytest.approx(23.5)  # 13, 34
     assert s["build_ms"]["median"] == pytest.approx(7.0)
     assert s["reaction_ms"]["p95"] == pytest.approx(13 + 0.95 * (34 - 13))
     # a run whose update times do not pair with its searches is left out of the reaction
     odd = {**_row(v.name, 2), "replan_update_ms": [5.0], "build_ms": 1.0}
-    assert ev.summarize([new, odd], v, 1.0)["reaction_ms"]["median"] == pytest.approx(23.5)
-    only_old = ev.summarize([old], v, 1.0)
+    assert report.summarize([new, odd], v, 1.0)["reaction_ms"]["median"] == pytest.approx(23.5)
+    only_old = report.summarize([old], v, 1.0)
     assert math.isnan(only_old["reaction_ms"]["median"]) and math.isnan(only_old["build_ms"]["median"])
-    table = ev.format_table({v.name: s, "old": only_old}, TASK)
+    table = report.format_table({v.name: s, "old": only_old}, TASK)
     assert "24ms" in table and table.splitlines()[-2].split()[-1] == "-"
 
 
@@ -274,13 +275,13 @@ def test_missing_model_is_trained_with_the_learning_seed_not_the_scenario_seed(t
 
     monkeypatch.setattr(ev, "train_main", fake_train)
     monkeypatch.setattr(ev, "run_one", FakeRunOne())
-    payload = ev.evaluate(replace(_settings(), seed=7), tmp_path / "eval", models)
+    payload = ev.evaluate(replace(_settings(), seeds=(7,)), tmp_path / "eval", models)
     assert len(commands) == 2  # learn-learn and tip-bowl, each once
     for cmd in commands:
         assert cmd[cmd.index("--seed") + 1] == "0"
-    assert payload["base_seed"] == 7
+    assert payload["seeds"] == [7] and payload["demo_seeds"] == [0]
     by_name = {v.name: v for v in ev.VARIANTS}
-    assert payload["models"] == {v: str(models / by_name[v].model_key) for v in VARIANTS}
+    assert payload["models"] == {f"{v}@demos0": str(models / by_name[v].model_key) for v in VARIANTS}
 
 
 def test_missing_model_is_trained_in_this_process(tmp_path, monkeypatch, capsys):

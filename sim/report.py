@@ -1,0 +1,138 @@
+"""What an evaluation reports: per-variant summaries of logged runs, their spread over a sweep's
+cells, and the paper's table beside the paper's own figures (Tables I and II).
+
+A *cell* of a sweep is one scenario set (base seed) with the models of one demonstration draw
+(demonstration seed); ``summarize`` makes a variant's line from the runs of one cell or of all,
+``spread`` the mean and standard deviation of the success rates over the cells.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["PAPER_LATENCY_MS", "PAPER_SUCCESS", "format_table", "spread", "strict_json", "summarize"]
+
+PAPER_LATENCY_MS = {"powder": 182, "pour": 200}  # the paper's planning latency (Tables I, II; 12 cores)
+PAPER_SUCCESS = {  # the paper's success rates (Table I: powder, 10 scenarios; Table II: pour)
+    "powder": {"learned+learned": 1.0, "learned+manual": 1.0, "manual+manual": 0.8, "arbitrary+manual": 0.6,
+               "no-obstacle-avoidance": 0.1},
+    "pour": {"learned+learned": 0.9, "arbitrary+manual": 0.4, "no-obstacle-avoidance": 0.3},
+}
+
+
+def _pct(values, q) -> float:
+    return float(np.percentile(values, q)) if len(values) else math.nan
+
+
+def _stats(values) -> dict:
+    return {"median": _pct(values, 50), "p95": _pct(values, 95)}
+
+
+def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 0) -> dict:
+    """One variant's line of ``results.json`` (``variant``: a ``sim.evaluate.Variant``) from its
+    finished runs; ``crashed``: its runs that raised twice (not in the success rate).
+
+    Latencies, each ``{median, p95}`` in ms: ``initial_ms`` and ``replan_ms`` are the searches
+    alone (the paper's planning latency); ``build_ms`` is the first landmark update (the
+    roadmap's construction) before the first plan, ``improve_ms`` the anytime re-plans after a
+    far move (the roadmap's growth and the search on it), and ``reaction_ms`` a re-plan's
+    landmark update (new step costs, new biased vertices after a far move) plus its search: the
+    time from sensing a move to holding the new plan. Runs logged before the update was timed
+    have no ``build_ms``/``replan_update_ms`` and are left out of those two."""
+    init = [r["initial_ms"] for r in runs if not math.isnan(r["initial_ms"])]
+    rep = [x for r in runs for x in r["replan_ms"]]
+    build = [r["build_ms"] for r in runs if not math.isnan(r.get("build_ms", math.nan))]
+    react, improve = [], []
+    for r in runs:
+        if len(r.get("replan_update_ms", ())) != len(r["replan_ms"]):
+            continue  # logged before the update was timed
+        kinds = r.get("replan_kind") or ["move"] * len(r["replan_ms"])
+        for kind, u, x in zip(kinds, r["replan_update_ms"], r["replan_ms"]):
+            (react if kind == "move" else improve).append(u + x)
+    return {
+        "tool_landmark": variant.label_tool, "env_landmark": variant.label_env,
+        "success_rate": float(np.mean([r["success"] for r in runs])) if runs else math.nan,
+        "n_scenarios": len(runs),
+        "crashed": int(crashed),
+        "collisions": int(sum(bool(r["contacts"]) for r in runs)),
+        "mean_fraction_in_bowl": float(np.mean([r["fraction_in_bowl"] for r in runs])) if runs else math.nan,
+        "learning_time_s": learning_time_s,
+        "initial_ms": _stats(init), "replan_ms": _stats(rep),
+        "build_ms": _stats(build), "reaction_ms": _stats(react), "improve_ms": _stats(improve),
+        "latency_mode": sorted({r.get("latency", "none") for r in runs}),
+        "tracking_max_mm": max([r["tracking_max_mm"] for r in runs if "tracking_max_mm" in r], default=math.nan),
+        "scenarios": [{"scenario": r["scenario"], "demo_seed": r.get("demo_seed", 0), "success": r["success"],
+                       "reason": r["reason"], "fraction_in_bowl": r["fraction_in_bowl"]}
+                      for r in sorted(runs, key=lambda r: (r.get("demo_seed", 0), r["scenario"]))],
+    }
+
+
+def spread(cells: list[dict]) -> dict:
+    """``{variant: {mean, sd, min, max, cells}}`` of the success rates over ``cells`` (each
+    ``{"variants": {name: summary}}``; cells without runs of a variant are left out; ``sd`` is the
+    sample standard deviation, NaN for one cell)."""
+    names = {n for c in cells for n in c["variants"]}
+    out = {}
+    for name in sorted(names):
+        rates = [c["variants"][name]["success_rate"] for c in cells
+                 if name in c["variants"] and c["variants"][name]["n_scenarios"]]
+        out[name] = {"mean": float(np.mean(rates)) if rates else math.nan,
+                     "sd": float(np.std(rates, ddof=1)) if len(rates) > 1 else math.nan,
+                     "min": min(rates, default=math.nan), "max": max(rates, default=math.nan),
+                     "cells": len(rates)}
+    return out
+
+
+def strict_json(x):
+    """``x`` with every NaN or infinite float as None: ``results.json`` is strict JSON (``null``
+    where nothing was measured, e.g. no re-plans), readable by jq and JavaScript."""
+    if isinstance(x, dict):
+        return {k: strict_json(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [strict_json(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def _ms(stats: dict | None) -> str:
+    """The median of ``{median, p95}`` in whole ms, '-' when missing or NaN."""
+    x = (stats or {}).get("median", math.nan)
+    return "-" if x is None or math.isnan(x) else f"{x:.0f}ms"
+
+
+def _success(v: dict, s: dict | None) -> str:
+    """A variant's success: its rate, or over several cells their mean ± standard deviation."""
+    if s and s.get("cells", 0) > 1:
+        return f"{s['mean']:.0%} ± {s['sd']:.0%}"
+    return "-" if v["success_rate"] is None or math.isnan(v["success_rate"]) else f"{v['success_rate']:.0%}"
+
+
+def format_table(results: dict, task: str, latency: str | None = None, cells: dict | None = None) -> str:
+    """The paper's table (``results``: ``{variant: summary}``) with the paper's success rate beside
+    ours: medians of the latencies (``summarize``); '-' where none was measured. ``latency``: the
+    evaluation's latency mode, named under the table; ``cells``: a sweep's ``spread``, whose
+    mean ± sd over cells then stands in the success column."""
+    head = f"{'Tool landmark':<14} {'Environment landmark':<21} {'Success':>11} {'Paper':>6} {'Learning':>9} " \
+           f"{'Plan (init)':>12} {'Replan':>9} {'Reaction':>9}"
+    n = max((v['n_scenarios'] for v in results.values()), default=0)
+    n_cells = max((s.get("cells", 0) for s in (cells or {}).values()), default=1)
+    what = f"{n} runs over {n_cells} cells (scenario sets x demonstration draws)" if n_cells > 1 else f"{n} scenarios"
+    lines = [f"{task}: success rate over {what}", head, "-" * len(head)]
+    paper = PAPER_SUCCESS.get(task, {})
+    for name, v in results.items():
+        p = f"{paper[name]:.0%}" if name in paper else "-"
+        lines.append(f"{v['tool_landmark']:<14} {v['env_landmark']:<21} {_success(v, (cells or {}).get(name)):>11} "
+                     f"{p:>6} {v['learning_time_s']:>8.1f}s {_ms(v['initial_ms']):>12} {_ms(v['replan_ms']):>9} "
+                     f"{_ms(v.get('reaction_ms')):>9}")
+    lines.append("Plan and Replan: the search alone (the paper's latency); Reaction: a re-plan with the "
+                 "landmark update before it (or the roadmap's growth, for the anytime re-plan after a far move); "
+                 f"the paper: {PAPER_LATENCY_MS.get(task, '-')} ms on 12 cores, over 10 scenarios")
+    crashed = sum(v.get("crashed", 0) for v in results.values())
+    if crashed:
+        lines.append(f"{crashed} run(s) crashed twice and are not counted: their errors are in runs.jsonl")
+    if latency is not None:
+        lines.append(f"latency mode: {latency} (the simulated time each plan costs while the robot moves on)")
+    return "\n".join(lines)

@@ -1,0 +1,176 @@
+"""Where evaluation jobs run: in this process, in a local process pool, or as Ray tasks.
+
+``run_jobs(fn, jobs, on_result, executor)`` calls ``fn(*job.args)`` for every job and hands each
+outcome to ``on_result(job, result, error)`` as soon as it finishes (in completion order), so the
+caller can log it at once. A job whose call raises, or whose worker dies (a process killed by
+the kernel, a crashed Ray worker), is run once more (``retries``); if it fails again
+``on_result`` gets ``result=None`` and ``error`` (one line: the exception's type and message).
+Ctrl-C in the driver stops everything and propagates: what was in flight is lost, what finished
+was handed over already.
+
+Executors (``make_executor``):
+
+* ``LocalExecutor(workers)``: ``workers`` forked processes (``concurrent.futures``), or this
+  process when ``workers`` is 1; a pool broken by a dead worker is replaced.
+* ``RayExecutor(address, num_cpus)``: Ray tasks of one CPU each, on the cluster at ``address``
+  (``ray start --head`` prints it; every node needs this distribution installed) or on a Ray
+  started for the run with ``num_cpus`` CPUs. ``share(obj)`` puts an object into Ray's object
+  store once (the model files), and a job's arguments that are such references reach ``fn`` as
+  the objects, on whichever node runs it. Ray is an optional extra: ``pip install .[ray]``.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["EXECUTORS", "Job", "LocalExecutor", "RayExecutor", "make_executor", "run_jobs"]
+
+EXECUTORS = ("local", "ray")
+
+
+@dataclass(frozen=True)
+class Job:
+    """key: what identifies the job to the caller (e.g. ``(variant, demo_seed, scenario)``);
+    args: ``fn``'s positional arguments."""
+
+    key: tuple
+    args: tuple
+
+
+def error_line(e: BaseException) -> str:
+    """One line for a failed job: the exception's type and the first line of its message."""
+    cause = getattr(e, "cause", None)  # a Ray task error carries the task's own exception
+    e = cause if isinstance(cause, BaseException) else e
+    text = str(e).strip().splitlines()
+    return f"{type(e).__name__}: {text[0] if text else ''}".rstrip(": ")
+
+
+class LocalExecutor:
+    """Jobs in ``workers`` forked processes (each started by ``initializer``), or inline when
+    ``workers`` is 1 (``fn`` is then looked up afresh by the caller: tests replace it)."""
+
+    remote = False
+
+    def __init__(self, workers: int = 2, initializer: Callable[[], None] | None = None):
+        if workers < 1:
+            raise ValueError(f"workers must be at least 1, got {workers}")
+        self.workers, self.initializer = int(workers), initializer
+        self._pool: cf.ProcessPoolExecutor | None = None
+
+    def share(self, obj: Any) -> Any:
+        return obj
+
+    def _ensure_pool(self) -> cf.ProcessPoolExecutor:
+        if self._pool is None:
+            self._pool = cf.ProcessPoolExecutor(max_workers=self.workers, initializer=self.initializer)
+        return self._pool
+
+    def run(self, fn: Callable, jobs: list[Job]):
+        """Yield ``(job, result, exception)`` per job as each finishes."""
+        if self.workers == 1:
+            for job in jobs:
+                try:
+                    yield job, fn(*job.args), None
+                except Exception as e:  # noqa: BLE001 (any failure of a job is its result; Ctrl-C propagates)
+                    yield job, None, e
+            return
+        pool = self._ensure_pool()
+        futures = {pool.submit(fn, *job.args): job for job in jobs}
+        for f in cf.as_completed(futures):
+            e = f.exception()
+            if isinstance(e, cf.process.BrokenProcessPool):
+                self._drop_pool()  # a worker died: this pool takes no more jobs, the next run starts one
+            yield futures[f], (None if e else f.result()), e
+
+    def _drop_pool(self, cancel: bool = False) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=not cancel, cancel_futures=True)
+            self._pool = None
+
+    def close(self, cancel: bool = False) -> None:
+        """Stop the workers; ``cancel``: drop the queued jobs and do not wait for the ones in
+        flight (Ctrl-C reaches the workers too, and they stop)."""
+        self._drop_pool(cancel)
+
+
+class RayExecutor:
+    """Jobs as Ray tasks of one CPU, on the cluster at ``address`` or on a local Ray with
+    ``num_cpus`` CPUs started here (and stopped by ``close``)."""
+
+    remote = True
+
+    def __init__(self, address: str | None = None, num_cpus: int | None = None):
+        try:
+            import ray
+        except ImportError as e:
+            from lfd.cli import UsageError
+            raise UsageError("--executor ray needs Ray: pip install 'lfd-landmarks[ray]'") from e
+        self._ray = ray
+        self._started = not ray.is_initialized()
+        if self._started:
+            kw: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}
+            if address:
+                ray.init(address=address, **kw)
+            else:
+                ray.init(num_cpus=num_cpus, **kw)
+
+    @property
+    def cpus(self) -> int:
+        return int(self._ray.cluster_resources().get("CPU", 0))
+
+    def share(self, obj: Any) -> Any:
+        return self._ray.put(obj)
+
+    def run(self, fn: Callable, jobs: list[Job]):
+        ray = self._ray
+        task = ray.remote(num_cpus=1, max_retries=0)(fn)  # our own retry counts crashes and errors alike
+        pending = {task.remote(*job.args): job for job in jobs}
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            ref = done[0]
+            job = pending.pop(ref)
+            try:
+                yield job, ray.get(ref), None
+            except Exception as e:  # noqa: BLE001 (RayTaskError: the job raised; or its worker died)
+                yield job, None, e
+
+    def close(self, cancel: bool = False) -> None:
+        if self._started and self._ray.is_initialized():
+            self._ray.shutdown()
+
+
+def make_executor(name: str, workers: int = 2, address: str | None = None,
+                  initializer: Callable[[], None] | None = None):
+    """``"local"`` (``workers`` processes) or ``"ray"`` (``address``, or a local Ray of ``workers`` CPUs)."""
+    if name == "local":
+        if address:
+            raise ValueError("an address is for --executor ray")
+        return LocalExecutor(workers, initializer)
+    if name == "ray":
+        return RayExecutor(address, None if address else workers)
+    raise ValueError(f"unknown executor {name!r}; choose from {EXECUTORS}")
+
+
+def run_jobs(fn: Callable, jobs: Iterable[Job], on_result: Callable[[Job, Any, str | None], None],
+             executor, retries: int = 1) -> None:
+    """Run every job on ``executor``; ``on_result(job, result, None)`` for each success and
+    ``on_result(job, None, error)`` for a job that failed ``retries + 1`` times."""
+    todo, attempt = list(jobs), 0
+    try:
+        while todo:
+            again = []
+            for job, result, e in executor.run(fn, todo):
+                if e is None:
+                    on_result(job, result, None)
+                elif attempt < retries:
+                    again.append(job)
+                else:
+                    on_result(job, None, error_line(e))
+            todo, attempt = again, attempt + 1
+    except BaseException:
+        executor.close(cancel=True)
+        raise
+    executor.close()
