@@ -14,9 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lfd.learning.demos import load_demos
 from lfd.robot.kinematics import KinematicModel
-from lfd.learning.learn import FitConfig, fit
 from sim import layout as L
 from sim.evaluate import VARIANTS
 from sim.runner import run_one
@@ -29,16 +27,8 @@ NO_OA = {v.name: v for v in VARIANTS}["no-obstacle-avoidance"]
 
 
 @pytest.fixture(scope="module")
-def model_dir(tmp_path_factory):
-    from sim.demos import generate
-    demos = tmp_path_factory.mktemp("demos")
-    generate("powder", demos, n=5, seed=21, progress=False)
-    ds = load_demos(demos)
-    kin = KinematicModel.from_spec(ds.robot)
-    res = fit(ds, kin, FitConfig(restarts=2, seed=0))
-    out = tmp_path_factory.mktemp("model")
-    res.model.save(out)
-    return out
+def model_dir(small_powder_model):
+    return small_powder_model
 
 
 def _scenario(bowl, obstacles=None, bowl_after=None, seed=0) -> Scenario:

@@ -1,0 +1,184 @@
+"""Evaluation sweeps: jobs retried once and crashes logged, a worker that dies, a grid of scenario
+sets x demonstration draws with its spread, and a sweep killed half way (SIGINT to a real
+``evaluate`` in a subprocess with two worker processes) that ``--resume`` completes into the
+results of an uninterrupted run. The runs are ``sweep_fakes.run`` (no simulation); the real
+simulation on Ray is in ``test_sweep_ray``."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+import sim.evaluate as ev
+import sweep_fakes
+from lfd.cli import UsageError
+from sim.report import format_table
+from sim.sweep import Job, LocalExecutor, run_jobs
+
+TESTS = Path(__file__).resolve().parent
+ROOT = TESTS.parent
+TASK = "powder"
+
+
+@pytest.fixture
+def models(tmp_path) -> Path:
+    root = tmp_path / "models"
+    for v in ev.VARIANTS:
+        d = ev.model_dir_for(root, v)
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "model.pt").write_bytes(b"")
+        (d / "config.json").write_text("{}")
+    return root
+
+
+@pytest.fixture
+def fakes(monkeypatch):
+    monkeypatch.setattr(ev, "draw_scenarios", sweep_fakes.draw)
+    monkeypatch.setattr(ev, "run_one", sweep_fakes.run)
+
+
+def _settings(**kw) -> ev.EvalSettings:
+    base = dict(task=TASK, n_scenarios=5, seeds=(0, 1), roadmap_size=10, workers=1,
+                variants=("learned+learned",), latency="none")
+    return ev.EvalSettings(**{**base, **kw})
+
+
+def _collect(fn, jobs, executor):
+    got = {}
+    run_jobs(fn, jobs, lambda job, result, error: got.__setitem__(job.key, (result, error)), executor)
+    return got
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_failing_job_is_retried_once_then_reported(tmp_path, workers):
+    jobs = [Job((k,), (str(tmp_path), k, fails)) for k, fails in (("ok", 0), ("once", 1), ("always", 5))]
+    got = _collect(sweep_fakes.flaky, jobs, LocalExecutor(workers))
+    assert got[("ok",)] == ("ok", None) and got[("once",)] == ("once", None)
+    assert got[("always",)] == (None, "RuntimeError: always failed on purpose")  # one line
+    calls = {k: int((tmp_path / f"{k}.calls").read_text()) for k in ("ok", "once", "always")}
+    assert calls == {"ok": 1, "once": 2, "always": 2}
+
+
+def test_a_worker_that_dies_loses_only_its_jobs_and_they_are_retried(tmp_path):
+    jobs = [Job((k,), (str(tmp_path), k, 1 if k == "dies" else 0, "die")) for k in ("a", "dies", "b", "c")]
+    got = _collect(sweep_fakes.flaky, jobs, LocalExecutor(2))
+    assert got == {(k,): (k, None) for k in ("a", "dies", "b", "c")}
+    assert int((tmp_path / "dies.calls").read_text()) == 2
+
+
+def test_grid_cells_spread_and_table(tmp_path, models, fakes, monkeypatch):
+    """Two scenario sets x two demonstration draws: draw 2's models are trained (on demand, on
+    demonstrations drawn with seed 2), every cell has its line and the table shows mean ± sd."""
+    trained, drawn = [], []
+
+    def fake_train(argv):
+        trained.append(argv)
+        out = Path(argv[argv.index("--out") + 1])
+        out.mkdir(parents=True)
+        (out / "model.pt").write_bytes(b"")
+        (out / "config.json").write_text("{}")
+        return 0
+
+    monkeypatch.setattr(ev, "train_main", fake_train)
+    monkeypatch.setattr(ev, "ensure_demos", lambda task, folder, seed: drawn.append((task, Path(folder), seed)))
+    monkeypatch.chdir(tmp_path)
+    payload = ev.evaluate(_settings(demo_seeds=(0, 2)), tmp_path / "eval", models)
+    assert drawn == [(TASK, Path("runs/demos/powder-seed2"), 2)]
+    assert len(trained) == 1 and trained[0][trained[0].index("--demos") + 1] == "runs/demos/powder-seed2"
+    assert (models / "demos-seed2" / "learn-learn" / "model.pt").is_file()
+    cells = payload["cells"]
+    assert [(c["seed"], c["demo_seed"]) for c in cells] == [(0, 0), (0, 2), (1, 0), (1, 2)]
+    rates = []
+    for c in cells:
+        seeds = [S * 100_003 + i for S in [c["seed"]] for i in range(5)]
+        expect = sum(sweep_fakes.outcome("learned+learned", s) for s in seeds) / 5
+        assert c["variants"]["learned+learned"]["success_rate"] == pytest.approx(expect)
+        rates.append(expect)
+    s = payload["spread"]["learned+learned"]
+    assert s["cells"] == 4 and s["mean"] == pytest.approx(sum(rates) / 4)
+    assert payload["variants"]["learned+learned"]["n_scenarios"] == 20
+    table = format_table(payload["variants"], TASK, "none", cells=payload["spread"])
+    assert f"{s['mean']:.0%} ± {s['sd']:.0%}" in table and "100%" in table  # ours and the paper's
+    rows = [json.loads(line) for line in (tmp_path / "eval" / "runs.jsonl").read_text().splitlines()]
+    assert {(r["demo_seed"], r["base_seed"]) for r in rows} == {(0, 0), (0, 1), (2, 0), (2, 1)}
+    paths = {r["task_point_path"] for r in rows}
+    assert len(paths) == 20 and all((tmp_path / "eval" / p).is_file() for p in paths)
+    with pytest.raises(UsageError, match="demonstration draws other than 0"):
+        ev.evaluate(_settings(demo_seeds=(3,)), tmp_path / "eval2", models, demos=tmp_path)
+
+
+def test_crashed_runs_are_logged_counted_apart_and_run_again_on_resume(tmp_path, models, fakes, monkeypatch):
+    bad = 100_003 + 2  # scenario 2 of base seed 1
+
+    def crashing(task, scenario, variant, *args, **kw):
+        if scenario.seed == bad:
+            raise ValueError("the planner fell over")
+        return sweep_fakes.run(task, scenario, variant, *args, **kw)
+
+    monkeypatch.setattr(ev, "run_one", crashing)
+    out = tmp_path / "eval"
+    payload = ev.evaluate(_settings(), out, models)
+    assert payload["crashed"] == [{"variant": "learned+learned", "demo_seed": 0, "scenario": bad,
+                                   "error": "ValueError: the planner fell over"}]
+    v = payload["variants"]["learned+learned"]
+    assert v["n_scenarios"] == 9 and v["crashed"] == 1
+    assert "1 run(s) crashed twice" in format_table(payload["variants"], TASK)
+    errors = [json.loads(x) for x in (out / "runs.jsonl").read_text().splitlines() if "error" in x]
+    assert len(errors) == 1 and errors[0]["scenario"] == bad and errors[0]["attempts"] == 2
+    with pytest.raises(UsageError, match="pass --resume"):
+        ev.evaluate(_settings(), out, models)  # a logged folder is not overwritten or mixed
+    monkeypatch.setattr(ev, "run_one", sweep_fakes.run)
+    calls = []
+    monkeypatch.setattr(ev, "run_one", lambda *a, **kw: calls.append(a[1].seed) or sweep_fakes.run(*a, **kw))
+    payload = ev.evaluate(_settings(), out, models, resume=True)
+    assert calls == [bad] and payload["crashed"] == [] and payload["variants"]["learned+learned"]["n_scenarios"] == 10
+
+
+_SWEEP = """
+import sys
+sys.path.insert(0, {tests!r})
+from pathlib import Path
+import sim.evaluate as ev, sweep_fakes
+ev.draw_scenarios, ev.run_one = sweep_fakes.draw, sweep_fakes.run
+settings = ev.EvalSettings(task="powder", n_scenarios=5, seeds=(0, 1), roadmap_size=10, workers=2,
+                           variants=("learned+learned",), latency="none")
+ev.evaluate(settings, Path({out!r}), Path({models!r}), resume=True)
+"""
+
+
+def _comparable(payload: dict) -> dict:
+    return {k: payload[k] for k in ("variants", "cells", "spread", "crashed", "scenario_set")}
+
+
+def test_a_sweep_killed_half_way_resumes_to_the_uninterrupted_results(tmp_path, models, fakes):
+    out = tmp_path / "eval"
+    script = _SWEEP.format(tests=str(TESTS), out=str(out), models=str(models))
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    log = out / "runs.jsonl"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if log.is_file() and len(log.read_text().splitlines()) >= 4:
+            break
+        time.sleep(0.02)
+    assert proc.poll() is None, proc.communicate()
+    os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C reaches the driver and its workers
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode != 0 and "KeyboardInterrupt" in err
+    lines = log.read_text().splitlines()
+    assert 4 <= len(lines) < 10 and not (out / "results.json").exists()  # half way, nothing summarized
+
+    resumed = ev.evaluate(replace(_settings(), workers=2), out, models, resume=True)
+    rows = [json.loads(x) for x in log.read_text().splitlines()]
+    assert sorted(r["scenario"] for r in rows) == sorted({r["scenario"] for r in rows})  # none run twice
+    assert len(rows) == 10
+    whole = ev.evaluate(_settings(), tmp_path / "whole", models)
+    assert _comparable(resumed) == _comparable(whole)
