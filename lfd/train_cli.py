@@ -30,19 +30,18 @@ import os
 import shlex
 import shutil
 import sys
-import time
 import warnings
 from pathlib import Path
 
 import numpy as np
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
+from lfd.train_log import Logger
 
 __all__ = [
     "ENV_CHOICES",
     "PROG",
     "TOOL_CHOICES",
-    "Logger",
     "build_parser",
     "check_device",
     "cli",
@@ -189,64 +188,6 @@ def ensure_demos(task: str, demos_dir: Path, seed: int) -> None:
     generate(task, demos_dir, n=11, seed=seed)
 
 
-class Logger:
-    """Progress on stdout and TensorBoard scalars/images (the only SummaryWriter owner).
-
-    ``quiet``: no line per EM iteration. Without TensorBoard installed it says so once on stderr
-    and writes no logs."""
-
-    def __init__(self, out: Path, joint_names, quiet: bool = False, prog: str = PROG):
-        try:
-            from torch.utils.tensorboard import SummaryWriter
-        except ImportError as e:
-            self.writer = None
-            print(f"{prog}: warning: TensorBoard is not installed ({e}), so no TensorBoard logs are written "
-                  f"to {out / 'tensorboard'}; pip install tensorboard to have them", file=sys.stderr, flush=True)
-        else:
-            self.writer = SummaryWriter(str(out / "tensorboard"))
-        self.joint_names = list(joint_names)
-        self.quiet = quiet
-        self.step = 0
-        self.t0 = time.perf_counter()
-
-    def __call__(self, ev: dict) -> None:
-        self.step += 1
-        tag = f"{ev['stage']}{ev['restart']}"
-        if not self.quiet:
-            print(f"[{time.perf_counter() - self.t0:6.1f}s] {ev['stage']} {ev['restart']} iter {ev['iteration'] + 1}: "
-                  f"loss {ev['loss']:.4f}  tool {np.round(ev['tool'], 3).tolist()}", flush=True)
-        w = self.writer
-        if w is None:
-            return
-        w.add_scalar(f"loss/{tag}", ev["loss"], ev["iteration"])
-        w.add_scalar("loss/all", ev["loss"], self.step)
-        for name, x in zip(ev["landmarks"], ev["env"]):
-            w.add_scalar(f"landmarks/{name}", float(x), self.step)
-        for axis, x in zip("xyz", ev["tool"]):
-            w.add_scalar(f"tool/{axis}", float(x), self.step)
-
-    def final(self, result) -> None:
-        w = self.writer
-        if w is None:
-            return
-        m = result.model
-        std = np.sqrt(np.diagonal(m.covariances.cpu().numpy(), axis1=1, axis2=2))  # (T, F)
-        names = self.joint_names + ["task_x", "task_y", "task_z"]
-        for t in range(m.time_steps):
-            for j, n in enumerate(names):
-                w.add_scalar(f"features/std/{n}", float(std[t, j]), t)
-            w.add_scalar("alignment/effective_demos", result.effective_demos[t], t)
-        for i, a in enumerate(result.alignments):
-            img = np.zeros((1, m.time_steps, len(a)), dtype=np.float32)  # (C, H = step, W = sample)
-            img[0, a, np.arange(len(a))] = 1.0
-            w.add_image(f"alignment/demo_{i:02d}", img, 0)
-
-    def close(self) -> None:
-        if self.writer is not None:
-            self.writer.close()
-            self.writer = None
-
-
 def resume_command(argv, prog: str = PROG) -> str:
     """The command line that resumes this run (``python train.py ...`` when run as that script)."""
     args = list(sys.argv[1:] if argv is None else argv)
@@ -360,28 +301,11 @@ def _summary(result, ds, cfg, n_obs: int) -> dict:
     return summary
 
 
-def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
-    from lfd.learning.checkpoint import (
-        CheckpointError,
-        atomic_write_text,
-        checkpoint_path,
-        config_record,
-        demos_fingerprint,
-        load_checkpoint,
-        remove_checkpoint,
-        save_checkpoint,
-    )
+def _demo_set(args):
+    """The demonstrations ``--demos`` names (made first when it defaults and is empty), loaded
+    and checked against ``--task``: ``(ds, demos_dir)``."""
     from lfd.learning.demos import load_demos
-    from lfd.learning.learn import fit
-    from lfd.robot.kinematics import KinematicModel
 
-    resumed = None
-    if args.resume:
-        try:
-            resumed = load_checkpoint(out)
-        except CheckpointError as e:
-            raise UsageError(f"--resume: {e}") from e
-        progress["done"] = resumed.restarts_done
     demos_dir = args.demos or default_demos(args.task)
     if args.demos is None:
         ensure_demos(args.task, demos_dir, args.seed)
@@ -389,8 +313,29 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
     ds = load_demos(demos_dir, time_steps=args.time_steps)
     if ds.task is not None and ds.task.name != args.task:
         raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")
-    cfg = _fit_config(args, ds, demos_dir)
-    progress["restarts"] = cfg.restarts
+    return ds, demos_dir
+
+
+def _checkpoint(args, out: Path, progress: dict):
+    """With ``--resume``, the checkpoint in ``out`` (a missing or damaged one is refused before
+    the demonstrations are read); else None."""
+    from lfd.learning.checkpoint import CheckpointError, load_checkpoint
+
+    if not args.resume:
+        return None
+    try:
+        resumed = load_checkpoint(out)
+    except CheckpointError as e:
+        raise UsageError(f"--resume: {e}") from e
+    progress["done"] = resumed.restarts_done
+    return resumed
+
+
+def _reconcile_checkpoint(resumed, out: Path, cfg, ds, guard) -> None:
+    """Refuse to resume a checkpoint made with other options or demonstrations; without one to
+    resume, remove an earlier run's checkpoint (this run's first restart writes a new one)."""
+    from lfd.learning.checkpoint import checkpoint_path, config_record, demos_fingerprint, remove_checkpoint
+
     if resumed is not None:
         why = resumed.mismatch(config_record(cfg), demos_fingerprint(ds))
         if why:
@@ -398,11 +343,23 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
                              f"demonstrations it was made with, or drop --resume to start over")
         print(f"resuming from {checkpoint_path(out)}: {resumed.restarts_done} of {cfg.restarts} restarts done",
               flush=True)
-    elif checkpoint_path(out).is_file():  # an older run's; this run's first restart writes a new one
+    elif checkpoint_path(out).is_file():
         print(f"starting over: removing the checkpoint of an earlier run in {out} (--resume continues one)",
               flush=True)
         with guard.critical():
             remove_checkpoint(out)
+
+
+def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
+    from lfd.learning.checkpoint import atomic_write_text, save_checkpoint
+    from lfd.learning.learn import fit
+    from lfd.robot.kinematics import KinematicModel
+
+    resumed = _checkpoint(args, out, progress)
+    ds, demos_dir = _demo_set(args)
+    cfg = _fit_config(args, ds, demos_dir)
+    progress["restarts"] = cfg.restarts
+    _reconcile_checkpoint(resumed, out, cfg, ds, guard)
     kin = KinematicModel.from_spec(ds.robot)
     n_obs = ds.subsample(cfg.subsample).n_observations  # what the fit learns from
     every = f" (1 in {cfg.subsample} of {ds.n_observations})" if cfg.subsample > 1 else ""

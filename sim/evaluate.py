@@ -80,7 +80,7 @@ class EvalSettings:
     """task; n_scenarios: scenarios per scenario set; seeds: base seeds of the scenario sets;
     demo_seeds: demonstration draws (0: the given demonstrations and models; k > 0: drawn by the
     simulator with seed k, see the module's docstring); roadmap_size: PRM* vertices per scenario
-    (None: ``lfd.planning.task_planner.default_vertices`` of each model's time steps); workers:
+    (None: ``lfd.planning.task_settings.default_vertices`` of each model's time steps); workers:
     local processes, or the CPUs of a Ray started for the run; video: write a GIF of the first
     scenario per variant; variants: names from ``VARIANTS``; latency: simulated time a plan costs
     (``sim.execute.ExecSettings.latency``: "measured", "none" or seconds); executor: "local" or

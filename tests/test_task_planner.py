@@ -13,7 +13,8 @@ from lfd.robot.kinematics import KinematicModel
 from lfd.learning.model import TaskModel, logdet_tensor
 from lfd.robot.robots import BAXTER_LEFT
 from lfd.planning.stepcost import ModelStepCost
-from lfd.planning.task_planner import TaskPlanner, TaskPlannerSettings, chain_edges
+from lfd.planning.biased import chain_edges
+from lfd.planning.task_planner import TaskPlanner, TaskPlannerSettings
 
 
 @pytest.fixture(scope="module")
@@ -113,7 +114,7 @@ def test_step_cost_is_the_models_mahalanobis_term(kin):
 def test_project_to_model_recovers_the_configuration_of_reachable_features(dtype):
     """Features of a known configuration as the target: Gauss-Newton from a perturbed start
     returns to it (the joint features make the minimum unique), never leaving the limits."""
-    from lfd.planning.task_planner import project_to_model
+    from lfd.planning.biased import project_to_model
     kin = KinematicModel.from_spec(dtype=dtype)
     model = _model(KinematicModel.from_spec(dtype=torch.float64)).to(dtype=dtype)
     model.kin = kin
@@ -134,7 +135,7 @@ def test_project_to_model_recovers_the_configuration_of_reachable_features(dtype
 def test_project_to_model_trades_tool_error_for_joints_as_the_covariance_says():
     """A target whose tool point the joints cannot give: with a loose tool-point variance the
     joints stay near their target, with a tight one the tool point is matched instead."""
-    from lfd.planning.task_planner import project_to_model
+    from lfd.planning.biased import project_to_model
     kin = KinematicModel.from_spec(dtype=torch.float64)
     landmarks = torch.eye(4, dtype=torch.float64)[None]
     errs = {}
@@ -176,7 +177,7 @@ def test_region_samples_follow_the_inflated_joint_gaussians(kin):
 
 def _tight_model(kin):
     """``_model`` with the tool point held within 2 cm of its mean: every step is task-relevant
-    (``lfd.planning.task_planner.TASK_STEP_SD``)."""
+    (``lfd.planning.growth.TASK_STEP_SD``)."""
     model = _model(kin)
     model.sigma_inv = torch.diag_embed(torch.cat([torch.full((7,), 1 / 0.8), torch.full((3,), 1 / 0.02)])
                                        ).to(torch.float64).repeat(model.mu.shape[0], 1, 1)
@@ -228,7 +229,7 @@ def test_guarded_projection_stops_at_the_obstacle_instead_of_entering_it(kin):
     """An 'obstacle' in joint space (left_s0 above a bound) between free starts and their target:
     unguarded, the projection walks into it; guarded, every free start stays free and still
     gets closer to the target, and a start already in collision projects as unguarded."""
-    from lfd.planning.task_planner import project_to_model
+    from lfd.planning.biased import project_to_model
     model = _model(kin)
     landmarks = torch.eye(4, dtype=torch.float64)[None]
     g = torch.Generator().manual_seed(4)
@@ -257,7 +258,7 @@ def test_free_posture_chains_hold_the_demonstrated_tool_pose_in_other_arm_postur
     """With a near-deterministic model, free-posture samples put the tool point where the model
     wants it and turn the gripper as the mean joints do (IK on the whole pose), from arm postures
     spread far from the mean; the default chains stay near the mean posture."""
-    from lfd.planning.task_planner import biased_configurations
+    from lfd.planning.biased import biased_configurations
     model = _model(kin)
     T = model.mu.shape[0]
     model.sigma_inv = torch.eye(10, dtype=torch.float64).repeat(T, 1, 1) / 1e-4
@@ -286,7 +287,7 @@ def test_free_posture_chains_hold_the_demonstrated_tool_pose_in_other_arm_postur
 
 
 def test_default_roadmap_size_scales_with_the_time_steps(kin):
-    from lfd.planning.task_planner import default_vertices
+    from lfd.planning.task_settings import default_vertices
     assert default_vertices(24) == 1000 and default_vertices(48) == 2000 and default_vertices(2) >= 2
     model = _model(kin, T=12)
     assert TaskPlanner(model, lambda q: False, lambda a, b: False).n_vertices == 500
@@ -297,7 +298,7 @@ def test_default_roadmap_size_scales_with_the_time_steps(kin):
 
 
 def test_can_bypass_follows_the_permitted_transitions():
-    from lfd.planning.task_planner import can_bypass
+    from lfd.planning.growth import can_bypass
     lt = np.log(np.tile([0.5, 0.4, 0.1], (6, 1)))  # offsets 0, 1, 2
     lt[-1] = [0.0, -np.inf, -np.inf]
     offsets = (0, 1, 2)
@@ -338,7 +339,7 @@ def test_one_unreachable_step_that_the_task_can_skip_still_plans(kin):
 def test_projection_with_a_step_per_row_equals_one_step_at_a_time(kin):
     """``project_to_model`` with each row's own step (the batched chains) gives what each step's
     rows give when projected alone with that step's metric."""
-    from lfd.planning.task_planner import project_to_model
+    from lfd.planning.biased import project_to_model
     model = _model(kin)
     T = model.mu.shape[0]
     model.sigma_inv = model.sigma_inv * torch.linspace(0.5, 2.0, T, dtype=torch.float64)[:, None, None]

@@ -283,50 +283,11 @@ def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
     DemoFormatError
         naming the file, the demonstration and the key for each problem.
     """
-    path = Path(path)
-    if not path.exists():
-        raise DemoFormatError(f"{path}: no such demonstration folder or file")
-    if path.is_file():
-        files, root = [path], path.parent
-    else:
-        files, root = sorted(path.glob("*.npz")), path
-    if not files:
-        raise DemoFormatError(f"{path}: no demonstration files (*.npz) in this folder")
-    task = None
-    if (root / "task.json").is_file():
-        try:
-            task = TaskSpec.load(root / "task.json")
-        except (ValueError, KeyError, TypeError, RecursionError) as e:
-            raise DemoFormatError(f"{root / 'task.json'}: not a valid task definition: {e}") from e
-    ground_truth = None
-    if (root / "ground_truth.json").is_file():
-        ground_truth = _read_ground_truth(root / "ground_truth.json")
+    files, root = _demo_files(Path(path))
+    task, ground_truth = _side_files(root)
     if time_steps is None:
         time_steps = task.time_steps if task is not None else 24
-
-    demos, first = [], None
-    for f in files:
-        demo, joint_names, landmark_names, robot = _check_one(f, _read_npz(f))
-        if first is None:
-            first = (f, joint_names, landmark_names, robot, demo.dt)
-        else:
-            f0, j0, l0, r0, dt0 = first
-            if robot != r0:
-                raise _fail(str(f), f"recorded on robot {robot.to_dict()} but {f0.name} on {r0.to_dict()}")
-            if joint_names != j0:
-                raise _fail(str(f), f"joint_names {list(joint_names)} differ from {f0.name}'s {list(j0)}")
-            if landmark_names != l0:
-                raise _fail(str(f), f"landmark_names {list(landmark_names)} (Z={len(landmark_names)}) differ "
-                                    f"from {f0.name}'s {list(l0)} (Z={len(l0)})")
-            if abs(demo.dt - dt0) > 1e-9 * max(1.0, dt0):
-                raise _fail(str(f), f"sampling interval dt={demo.dt} differs from {f0.name}'s dt={dt0}")
-        if demo.n_samples < time_steps:
-            raise _fail(str(f), f"only {demo.n_samples} samples, fewer than the {time_steps} time steps of "
-                                f"the task model")
-        demos.append(demo)
-
-    assert first is not None  # files is not empty (checked above)
-    _, joint_names, landmark_names, robot, dt0 = first
+    demos, (_, joint_names, landmark_names, robot, dt0) = _read_consistent(files, time_steps)
     if task is not None and abs(task.dt - dt0) > 1e-9 * max(1.0, dt0):
         raise DemoFormatError(f"{root / 'task.json'}: dt={task.dt} differs from the demonstrations' "
                               f"sampling interval dt={dt0} (the model's dt comes from task.json)")
@@ -348,6 +309,57 @@ def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
         _check_limits(str(f), d.q, joint_names, lower, upper, limit_tolerance)
     return DemoSet(demos=tuple(demos), joint_names=joint_names, landmark_names=landmark_names,
                    robot=robot, task=task, ground_truth=ground_truth, root=root)
+
+
+def _demo_files(path: Path) -> tuple[list[Path], Path]:
+    """The ``.npz`` files of a set (a folder, or one file) and the folder holding them."""
+    if not path.exists():
+        raise DemoFormatError(f"{path}: no such demonstration folder or file")
+    files, root = ([path], path.parent) if path.is_file() else (sorted(path.glob("*.npz")), path)
+    if not files:
+        raise DemoFormatError(f"{path}: no demonstration files (*.npz) in this folder")
+    return files, root
+
+
+def _side_files(root: Path):
+    """``(task, ground_truth)``: ``task.json`` as a ``TaskSpec`` and ``ground_truth.json``, each
+    None when absent."""
+    task = None
+    if (root / "task.json").is_file():
+        try:
+            task = TaskSpec.load(root / "task.json")
+        except (ValueError, KeyError, TypeError, RecursionError) as e:
+            raise DemoFormatError(f"{root / 'task.json'}: not a valid task definition: {e}") from e
+    ground_truth = _read_ground_truth(root / "ground_truth.json") if (root / "ground_truth.json").is_file() else None
+    return task, ground_truth
+
+
+def _read_consistent(files: list[Path], time_steps: int):
+    """Every file checked on its own and against the first (robot, joint and landmark names,
+    dt), each with at least ``time_steps`` samples: ``(demos, (first file, joint_names,
+    landmark_names, robot, dt))``."""
+    demos, first = [], None
+    for f in files:
+        demo, joint_names, landmark_names, robot = _check_one(f, _read_npz(f))
+        if first is None:
+            first = (f, joint_names, landmark_names, robot, demo.dt)
+        else:
+            f0, j0, l0, r0, dt0 = first
+            if robot != r0:
+                raise _fail(str(f), f"recorded on robot {robot.to_dict()} but {f0.name} on {r0.to_dict()}")
+            if joint_names != j0:
+                raise _fail(str(f), f"joint_names {list(joint_names)} differ from {f0.name}'s {list(j0)}")
+            if landmark_names != l0:
+                raise _fail(str(f), f"landmark_names {list(landmark_names)} (Z={len(landmark_names)}) differ "
+                                    f"from {f0.name}'s {list(l0)} (Z={len(l0)})")
+            if abs(demo.dt - dt0) > 1e-9 * max(1.0, dt0):
+                raise _fail(str(f), f"sampling interval dt={demo.dt} differs from {f0.name}'s dt={dt0}")
+        if demo.n_samples < time_steps:
+            raise _fail(str(f), f"only {demo.n_samples} samples, fewer than the {time_steps} time steps of "
+                                f"the task model")
+        demos.append(demo)
+    assert first is not None  # files is not empty (_demo_files)
+    return demos, first
 
 
 def _main(argv=None) -> int:

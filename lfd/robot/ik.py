@@ -150,6 +150,62 @@ def _skew(v: torch.Tensor) -> torch.Tensor:
                         torch.stack([-v[:, 1], v[:, 0], z], -1)], dim=-2)
 
 
+def _tool_errors(kin: KinematicModel, q: torch.Tensor, p_ee_tool: torch.Tensor | None,
+                 T_world_target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pose errors ``(b, 6)`` (position, rotation; world frame) of the tool at ``q (b, d)``
+    against ``T_world_target (b, 4, 4)``, and the tool's Jacobians ``(b, 6, d)``; ``p_ee_tool
+    (b, 3)`` the tool points in the end-link frame, or None for the end link itself."""
+    J, T_world_ee = kin.jacobian(q, with_pose=True)  # (b, 6, d), (b, 4, 4)
+    R = T_world_ee[:, :3, :3]
+    if p_ee_tool is not None:
+        r = (R @ p_ee_tool[..., None])[..., 0]  # (b, 3) lever arm in the world frame
+        p = T_world_ee[:, :3, 3] + r
+        J = torch.cat([J[:, :3] - _skew(r) @ J[:, 3:], J[:, 3:]], dim=1)  # v_tool = v_ee + w x r
+    else:
+        p = T_world_ee[:, :3, 3]
+    e = torch.cat([T_world_target[:, :3, 3] - p, rotation_error(T_world_target[:, :3, :3], R)], dim=-1)
+    return e, J
+
+
+def _dls_step(kin: KinematicModel, q: torch.Tensor, e: torch.Tensor, J: torch.Tensor, w: torch.Tensor,
+              q_rest: torch.Tensor, config: IKConfig) -> torch.Tensor:
+    """One damped least-squares step ``q (b, d) -> (b, d)`` from errors ``e (b, 6)`` weighted by
+    ``w (b, 6)``, Jacobians ``J (b, 6, d)``, with a pull towards ``q_rest (b, d)`` in the exact
+    null space of the constraining rows; joints at a limit that the step would push further
+    are taken out of the Jacobian; the step is clamped to ``config.max_step`` and the limits."""
+    b, d = q.shape
+    lower, upper = kin.lower, kin.upper
+    eye6 = torch.eye(6, dtype=q.dtype, device=q.device)
+    eye_d = torch.eye(d, dtype=q.dtype, device=q.device)
+    ew = e * w  # (b, 6)
+    Jw = J * w[..., None]  # (b, 6, d)
+    lam2 = config.damping ** 2 + config.error_damping * (ew * ew).sum(-1)  # (b,)
+    null_pull = config.nullspace_gain * (q_rest - q)  # (b, d)
+    null_pull = torch.where(((q <= lower + 1e-9) & (null_pull < 0))
+                            | ((q >= upper - 1e-9) & (null_pull > 0)), 0.0, null_pull)
+    free = torch.ones_like(q)
+    for _ in range(2):  # second pass with saturated joints removed from the Jacobian
+        Jf = Jw * free[:, None, :]
+        A = Jf @ Jf.transpose(1, 2) + lam2[:, None, None] * eye6  # (b, 6, 6)
+        Jpinv = Jf.transpose(1, 2) @ torch.linalg.inv(A)  # (b, d, 6)
+        # exact projector onto the null space of the rows that constrain (not the damped one,
+        # whose leak would fight the task near singularities)
+        _, S, Vh = torch.linalg.svd(Jf, full_matrices=True)  # S: (b, 6), Vh: (b, d, d)
+        rank_on = (S > 1e-6 * S[:, :1].clamp_min(1e-12)).to(q.dtype)  # (b, 6)
+        rank_on = torch.cat([rank_on, rank_on.new_zeros(b, d - rank_on.shape[1])], dim=1)
+        V = Vh.transpose(1, 2)
+        N = eye_d - (V * rank_on[:, None, :]) @ Vh  # (b, d, d)
+        N = N * free[:, None, :] * free[:, :, None]
+        dq = (Jpinv @ ew[..., None])[..., 0] + (N @ null_pull[..., None])[..., 0]  # (b, d)
+        pushing = ((q <= lower + 1e-9) & (dq < 0)) | ((q >= upper - 1e-9) & (dq > 0))
+        if not bool((pushing & (free > 0)).any()):
+            break
+        free = free * (~pushing).to(q.dtype)
+    dq = dq * free
+    scale = (config.max_step / dq.abs().amax(dim=-1).clamp_min(1e-12)).clamp(max=1.0)  # (b,)
+    return torch.minimum(torch.maximum(q + dq * scale[:, None], lower), upper)
+
+
 def solve_ik_tensor(kin: KinematicModel, T_world_target: torch.Tensor, q_seed: torch.Tensor,
                     p_ee_tool: torch.Tensor | None = None, weights: torch.Tensor | None = None,
                     q_rest: torch.Tensor | None = None, config: IKConfig = IKConfig()) -> IKResult:
@@ -160,66 +216,19 @@ def solve_ik_tensor(kin: KinematicModel, T_world_target: torch.Tensor, q_seed: t
     p_ee_tool : (B, 3) tool points in the end-link frame, or None for the end link itself.
     weights : (B, 6) error weights (position xyz, rotation xyz, world frame), or None for ones.
     q_rest : (B, d) preferred postures for the null-space pull, or None for the seeds.
+    Rows that meet the tolerances (after ``config.min_iters``) stop; only the others go on.
     """
-    B, d = q_seed.shape
-    lower, upper = kin.lower, kin.upper
-    q = torch.minimum(torch.maximum(q_seed, lower), upper).clone()  # (B, d), never the caller's
+    B = q_seed.shape[0]
+    q = torch.minimum(torch.maximum(q_seed, kin.lower), kin.upper).clone()  # (B, d), never the caller's
     if q_rest is None:
         q_rest = q.clone()
     w = torch.ones(B, 6, dtype=q.dtype, device=q.device) if weights is None else weights  # (B, 6)
-    p_target = T_world_target[:, :3, 3]  # (B, 3)
-    R_target = T_world_target[:, :3, :3]  # (B, 3, 3)
     pos_on = (w[:, :3] > 0).to(q.dtype)
     rot_on = (w[:, 3:] > 0).to(q.dtype)
-    eye6 = torch.eye(6, dtype=q.dtype, device=q.device)
-    eye_d = torch.eye(d, dtype=q.dtype, device=q.device)
 
-    def errors(q, rows):
-        """Errors ``(b, 6)`` and tool Jacobians ``(b, 6, d)`` of the batch rows ``rows`` at ``q (b, d)``."""
-        J, T_world_ee = kin.jacobian(q, with_pose=True)  # (b, 6, d), (b, 4, 4)
-        R = T_world_ee[:, :3, :3]
-        if p_ee_tool is not None:
-            r = (R @ p_ee_tool[rows, :, None])[..., 0]  # (b, 3) lever arm in the world frame
-            p = T_world_ee[:, :3, 3] + r
-            J = torch.cat([J[:, :3] - _skew(r) @ J[:, 3:], J[:, 3:]], dim=1)  # v_tool = v_ee + w x r
-        else:
-            p = T_world_ee[:, :3, 3]
-        e = torch.cat([p_target[rows] - p, rotation_error(R_target[rows], R)], dim=-1)  # (b, 6)
-        return e, J
+    def errors(q_rows, rows):
+        return _tool_errors(kin, q_rows, None if p_ee_tool is None else p_ee_tool[rows], T_world_target[rows])
 
-    def step(rows, q, e, J):
-        """One damped least-squares step of the rows ``rows``: ``q (b, d)`` -> ``(b, d)``."""
-        b = len(rows)
-        w_r = w[rows]
-        ew = e * w_r  # (b, 6)
-        Jw = J * w_r[..., None]  # (b, 6, d)
-        lam2 = config.damping ** 2 + config.error_damping * (ew * ew).sum(-1)  # (b,)
-        null_pull = config.nullspace_gain * (q_rest[rows] - q)  # (b, d)
-        null_pull = torch.where(((q <= lower + 1e-9) & (null_pull < 0))
-                                | ((q >= upper - 1e-9) & (null_pull > 0)), 0.0, null_pull)
-        free = torch.ones_like(q)
-        for _ in range(2):  # second pass with saturated joints removed from the Jacobian
-            Jf = Jw * free[:, None, :]
-            A = Jf @ Jf.transpose(1, 2) + lam2[:, None, None] * eye6  # (b, 6, 6)
-            Jpinv = Jf.transpose(1, 2) @ torch.linalg.inv(A)  # (b, d, 6)
-            # exact projector onto the null space of the rows that constrain (not the damped one,
-            # whose leak would fight the task near singularities)
-            _, S, Vh = torch.linalg.svd(Jf, full_matrices=True)  # S: (b, 6), Vh: (b, d, d)
-            rank_on = (S > 1e-6 * S[:, :1].clamp_min(1e-12)).to(q.dtype)  # (b, 6)
-            rank_on = torch.cat([rank_on, rank_on.new_zeros(b, d - rank_on.shape[1])], dim=1)
-            V = Vh.transpose(1, 2)
-            N = eye_d - (V * rank_on[:, None, :]) @ Vh  # (b, d, d)
-            N = N * free[:, None, :] * free[:, :, None]
-            dq = (Jpinv @ ew[..., None])[..., 0] + (N @ null_pull[..., None])[..., 0]  # (b, d)
-            pushing = ((q <= lower + 1e-9) & (dq < 0)) | ((q >= upper - 1e-9) & (dq > 0))
-            if not bool((pushing & (free > 0)).any()):
-                break
-            free = free * (~pushing).to(q.dtype)
-        dq = dq * free
-        scale = (config.max_step / dq.abs().amax(dim=-1).clamp_min(1e-12)).clamp(max=1.0)  # (b,)
-        return torch.minimum(torch.maximum(q + dq * scale[:, None], lower), upper)
-
-    # rows that met the tolerances (after min_iters) stop; only the others are computed on
     rows = torch.arange(B, device=q.device)
     e, J = errors(q, rows)
     e_all = e.clone()  # (B, 6) every row's latest error
@@ -234,7 +243,7 @@ def solve_ik_tensor(kin: KinematicModel, T_world_target: torch.Tensor, q_seed: t
                 break
             if not bool(going.all()):
                 rows, e, J = rows[going], e[going], J[going]
-        q_rows = step(rows, q[rows], e, J)
+        q_rows = _dls_step(kin, q[rows], e, J, w[rows], q_rest[rows], config)
         q[rows] = q_rows
         e, J = errors(q_rows, rows)
         e_all[rows] = e

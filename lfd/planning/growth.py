@@ -1,0 +1,220 @@
+"""The biased part of a task planner's roadmap: sampled task executions for each landmark place.
+
+``BiasedGrowth`` adds ``biased_configurations`` chains to a ``Roadmap`` for the landmarks' current
+place and remembers the places it grew for (the last 64): a place within ``regrow_distance`` of
+one of them adds nothing. A growth runs in rounds (``TaskPlannerSettings``): a demonstrated-posture
+batch and a moved-posture batch, then extra posture batches while some step has fewer than
+``min_free_per_step`` collision-free vertices; a caller can run them one at a time (anytime
+re-planning). It also gives the reachability verdict: the task-relevant steps whose tool-point
+targets no sampled execution's IK reached, and whether the learned transitions can skip them
+(``can_bypass``).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from lfd.learning.model import TaskModel
+from lfd.planning.biased import biased_configurations, chain_edges
+from lfd.planning.roadmap import Roadmap
+from lfd.planning.task_settings import TaskPlannerSettings
+
+__all__ = ["TASK_STEP_SD", "BiasedGrowth", "can_bypass"]
+
+TASK_STEP_SD = 0.05  # m: a step whose tool-point sd (largest axis) is below this is task-relevant
+
+
+def can_bypass(log_trans: np.ndarray, offsets, blocked, t_start: int) -> bool:
+    """Whether the task's time steps lead from ``t_start`` to the last one avoiding ``blocked``.
+
+    ``log_trans (T, K)``: ``log p(t + offsets[k] | t)``, ``-inf`` where not permitted. A step whose
+    tool-point target no sampled execution reached does not make the task unreachable when the
+    learned transitions can skip it (seen: one sparsely aligned step of the pour, tight by accident,
+    at the source container while the bowl was far); a run of such steps, as when the bowl is out of
+    the arm's reach, cannot be skipped.
+    """
+    T = len(log_trans)
+    bad = np.zeros(T, dtype=bool)
+    bad[np.asarray(blocked, dtype=int)] = True
+    ok = np.zeros(T, dtype=bool)  # the robot is at t_start already, reachable or not
+    ok[t_start] = True
+    for t in range(t_start, T):
+        if not ok[t]:
+            continue
+        for k, lp in zip(offsets, log_trans[t]):
+            if k > 0 and t + k < T and np.isfinite(lp) and not bad[t + k]:
+                ok[t + k] = True
+    return bool(ok[-1])
+
+
+@dataclass
+class _Growth:
+    """Biased growth for one landmark place, run a round at a time (see ``BiasedGrowth._new_growth``).
+
+    pos: ``(Z, 3)`` the landmark positions it is for; rounds: ``(samples, posture_spread,
+    free_posture)`` per round, the first two always run, the others only while some step has
+    fewer than ``min_free_per_step`` free vertices and the samples stay within ``budget``;
+    per_step: ``(T,)`` collision-free biased vertices per step so far; reached: ``(T,)`` steps
+    whose tool-point target some execution's IK reached."""
+
+    pos: np.ndarray
+    rounds: list
+    budget: int
+    per_step: np.ndarray
+    reached: np.ndarray
+    done: int = 0  # rounds taken (run or skipped)
+
+    @property
+    def finished(self) -> bool:
+        return self.done >= len(self.rounds)
+
+
+class BiasedGrowth:
+    """Biased vertices of ``model``'s sampled executions for each landmark place, added to the
+    roadmap given to each call; ``generator``: the torch
+    generator of every draw (shared with the caller's other samples, so that one seed fixes
+    the roadmap); ``max_vertices``: the roadmap never grows past it."""
+
+    def __init__(self, model: TaskModel, settings: TaskPlannerSettings, generator: torch.Generator, max_vertices: int):
+        self.model, self.settings, self._gen, self.max_vertices = model, settings, generator, int(max_vertices)
+        d = model.mu.shape[1] - 3
+        sigma = torch.linalg.inv(model.sigma_inv.detach())  # (T, F, F) lower Cholesky of Sigma_t
+        task_sd = torch.linalg.eigvalsh((sigma @ sigma.transpose(-1, -2))[:, d:, d:]).amax(-1).sqrt()  # (T,)
+        self._task_steps = (task_sd <= TASK_STEP_SD).cpu().numpy()  # (T,) bool
+        # landmark positions (Z, 3) biased samples were made for, and the time steps whose
+        # tool-point targets no sampled execution reached there (the arm cannot: 'unreachable')
+        self._grown_for: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=64)  # bounded
+        self._unreachable = np.zeros(0, dtype=int)
+        self._growth: _Growth | None = None  # a regrowth under way (rounds left)
+        self.stats = {"biased_vertices": 0, "regrows": 0}
+
+    @property
+    def pending(self) -> bool:
+        """Whether a growth has rounds left."""
+        return self._growth is not None
+
+    @property
+    def unreachable(self) -> np.ndarray:
+        """The current verdict: task-relevant steps no sampled execution reached (may be empty)."""
+        return self._unreachable
+
+    def can_reach_end(self, t_current: int) -> bool:
+        """Whether the task can go from ``t_current`` to its last step around the unreachable steps."""
+        return not len(self._unreachable) or can_bypass(self.model.log_trans.detach().cpu().numpy(),
+                                                        self.model.offsets, self._unreachable, int(t_current))
+
+    def initial(self, rm: Roadmap, landmarks: torch.Tensor, n: int) -> None:
+        """Every round of a growth of about ``n`` vertices for ``landmarks (Z, 4, 4)`` (the roadmap's
+        build), and its verdict."""
+        pos = landmarks[:, :3, 3].cpu().numpy()
+        verdict = np.zeros(0, dtype=int)
+        if n:
+            g = self._new_growth(pos, n)
+            self._run_growth(g, rm, landmarks)
+            verdict = self._verdict(g.reached)
+        self._remember(pos, verdict)
+
+    def grow(self, rm: Roadmap, landmarks: torch.Tensor, rounds: int | None = None) -> None:
+        """Run up to ``rounds`` (None: all) rounds of the growth ``landmarks (Z, 4, 4)`` need (none
+        when the roadmap was grown near their place), and update the verdict."""
+        pos = landmarks[:, :3, 3].cpu().numpy()
+        g = self._growth
+        if g is None or np.abs(pos - g.pos).max() > self.settings.regrow_distance:
+            self._growth = g = self._start_growth(pos, rm, landmarks)  # a growth for another place is dropped
+        if g is not None:
+            self._run_growth(g, rm, landmarks, rounds)
+            self._unreachable = self._verdict(g.reached)
+            if g.finished:
+                self._remember(g.pos, self._unreachable)
+                self._growth = None
+
+    def _new_growth(self, pos: np.ndarray, n: int, budget: int | None = None) -> _Growth:
+        """A growth of about ``n`` biased vertices (collision-free ones) with their chain edges,
+        for landmarks at ``pos (Z, 3)``: a share ``posture_share`` of them from chains whose arm
+        posture is moved by ``posture_spread`` (an obstacle may sit where the demonstrated elbow
+        was), and extra rounds while some step lacks free vertices, as long as the samples stay
+        within ``budget`` (default ``2 n``): free-posture chains (``biased_configurations(
+        free_posture=True)``: the demonstrated tool pose held by arm postures from anywhere)
+        alternating with moved-posture ones. Every round's projection is guarded by the
+        collision check."""
+        s = self.settings
+        n_moved = int(round(s.posture_share * n))
+        T = self.model.mu.shape[0]
+        rounds = [(n - n_moved, 0.0, False), (n_moved, s.posture_spread, False)]
+        rounds += [(n_moved, s.posture_spread, k % 2 == 0) for k in range(s.extra_posture_rounds)]
+        return _Growth(pos=pos, rounds=rounds, budget=2 * n if budget is None else budget,
+                       per_step=np.zeros(T, dtype=int), reached=np.zeros(T, dtype=bool))
+
+    def _run_growth(self, g: _Growth, rm: Roadmap, landmarks: torch.Tensor, rounds: int | None = None) -> None:
+        """Run up to ``rounds`` (None: all) of ``g``'s rounds; the ones not needed are skipped."""
+        k = 0
+        while not g.finished and (rounds is None or k < rounds or not self._round_needed(g)):
+            if self._round_needed(g):
+                self._grow_round(g, rm, landmarks)
+                k += 1
+            else:
+                g.done += 1
+
+    def _round_needed(self, g: _Growth) -> bool:
+        """Whether ``g``'s next round runs: the first two always (unless empty), the extra ones
+        only while some step has too few free vertices and within the budget."""
+        i = g.done
+        m = g.rounds[i][0]
+        drawn = sum(r[0] for r in g.rounds[:i])
+        return m > 0 and (i < 2 or (g.per_step.min() < self.settings.min_free_per_step
+                                    and drawn + m <= g.budget))
+
+    def _grow_round(self, g: _Growth, rm: Roadmap, lm: torch.Tensor) -> None:
+        """Run ``g``'s next round: sample, add the free vertices and their chain edges."""
+        i = g.done
+        m, spread, free_posture = g.rounds[i]
+        g.done += 1
+        Q, valid, steps, reached = biased_configurations(self.model, lm, m, self._gen, posture_spread=spread,
+                                                         batch_collision_fn=rm.in_collision,
+                                                         free_posture=free_posture)
+        g.reached |= reached.reshape(-1, steps).any(0)
+        free = valid.copy()
+        free[valid] = ~rm.in_collision(Q[valid])
+        ids = np.full(len(Q), -1)
+        ids[free] = rm.add_vertices(Q[free], check=False)
+        rm.add_edges(ids[chain_edges(free, steps)])
+        g.per_step += free.reshape(-1, steps).sum(0)
+        self.stats["biased_vertices"] += int(free.sum())
+        if i >= 2:
+            self.stats["extra_posture_rounds"] = self.stats.get("extra_posture_rounds", 0) + 1
+
+    def _start_growth(self, pos: np.ndarray, rm: Roadmap, landmarks: torch.Tensor) -> _Growth | None:
+        """The growth the landmarks at ``pos (Z, 3)`` need, or None when the roadmap was grown near
+        there already or is full (then the verdict is settled here)."""
+        s = self.settings
+        room = self.max_vertices - rm.n
+        dist = [np.abs(pos - g).max() for g, _ in self._grown_for]
+        nearest = int(np.argmin(dist))
+        if dist[nearest] <= s.regrow_distance:
+            self._unreachable = self._grown_for[nearest][1]
+            return None
+        if min(room, s.regrow_vertices) <= 0 or not s.bias_fraction:
+            # the roadmap is full: a few sampled executions, IK only, still give the verdict
+            _, _, steps, reached = biased_configurations(self.model, landmarks, 4 * self.model.mu.shape[0],
+                                                         self._gen, project_iters=0)
+            self._remember(pos, self._verdict(reached.reshape(-1, steps).any(0)))
+            return None
+        self.stats["regrows"] += 1
+        return self._new_growth(pos, min(room, s.regrow_vertices), budget=room)
+
+    def _verdict(self, reached: np.ndarray) -> np.ndarray:
+        """Task-relevant time steps whose tool-point targets no sampled execution reached
+        (``reached: (T,) bool``). Only steps where the demonstrations held the tool point within
+        ``TASK_STEP_SD`` of its mean relative to the landmark count: at the others (the start and
+        the end, at the source container) the target relative to a far bowl is loose and may be
+        out of reach while the task is not (seen in the soak: a bowl in the square's far corner)."""
+        return np.flatnonzero(~reached & self._task_steps)
+
+    def _remember(self, pos: np.ndarray, unreachable: np.ndarray) -> None:
+        """The current verdict, kept for the landmark place ``pos (Z, 3)`` (the last 64 places)."""
+        self._unreachable = unreachable
+        self._grown_for.append((pos, unreachable))

@@ -1,0 +1,81 @@
+"""Settings of ``lfd.planning.task_planner.TaskPlanner`` (and its roadmap size by model length)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lfd.planning.planner import PlannerSettings
+from lfd.planning.roadmap import RoadmapSettings
+
+__all__ = ["TaskPlannerSettings", "default_vertices"]
+
+DEFAULT_VERTICES, DEFAULT_VERTICES_STEPS = 1000, 24  # roadmap size for a model of this many steps
+
+
+def default_vertices(time_steps: int) -> int:
+    """Roadmap size for a model of ``time_steps`` steps: 1000 per 24 steps, at least 2."""
+    return max(2, round(DEFAULT_VERTICES * time_steps / DEFAULT_VERTICES_STEPS))
+
+
+@dataclass(frozen=True)
+class TaskPlannerSettings:
+    """n_vertices: roadmap size; None (default) scales it with the model's time steps,
+    ``default_vertices(T)`` = 1000 per 24 steps, so that a model with more steps gets as many
+    sampled executions (chains of T biased vertices, ~25) as one with fewer (measured on the
+    48-step pour: the three scenes of base seeds 0 and 1 that poured 45-77% into the bowl with
+    1000 vertices, 12 executions, poured 85-98% with 2000); bias_fraction: share of vertices from
+    the task model's sampled
+    executions (IK chains, see ``biased_configurations``); region_fraction: share of the *other*
+    vertices drawn around the task's joint postures, ``N(mu_t, region_inflation^2 Sigma_t)`` (joint
+    block, random t), the rest uniform within the joint limits (``sample_fn``): the region
+    samples join the chains to each other and let paths detour around obstacles the chains run
+    into, the uniform ones keep every configuration reachable (asymptotic optimality);
+    posture_share, posture_spread: share of the biased vertices whose chains move the sampled
+    arm posture by ``N(0, posture_spread^2)`` rad per joint (one offset per chain), reaching the
+    same tool points with the arm elsewhere; min_free_per_step, extra_posture_rounds: while some
+    time step has fewer than ``min_free_per_step`` collision-free biased vertices (obstacles where
+    the demonstrated arm goes), up to ``extra_posture_rounds`` more posture batches are drawn,
+    free-posture ones (the demonstrated tool pose held by any arm posture IK finds from a uniform
+    start) alternating with moved-posture ones;
+    regrow_distance: landmark motion (m) that triggers new biased samples; regrow_vertices: how
+    many; max_vertices: the roadmap never grows past this (default 3 x the roadmap size), so a long run
+    of landmark moves cannot grow memory without bound; object_radius: a sensed landmark is also an
+    obstacle of about this radius (m): when it moves, edges passing near its old or new place are
+    checked again; seed: of every random draw. A configuration costs the Mahalanobis term of Eq. 3
+    (the step's ``s log|Sigma_t|`` is a constant per step and left out, so costs are >= 0)."""
+
+    n_vertices: int | None = None
+    bias_fraction: float = 0.6
+    region_fraction: float = 0.67
+    region_inflation: float = 2.0
+    posture_share: float = 0.33
+    posture_spread: float = 1.0
+    min_free_per_step: int = 3
+    extra_posture_rounds: int = 3
+    regrow_distance: float = 0.10
+    regrow_vertices: int = 400
+    max_vertices: int | None = None
+    object_radius: float = 0.13
+    seed: int = 0
+    roadmap: RoadmapSettings = field(default_factory=RoadmapSettings)
+    planner: PlannerSettings = field(default_factory=PlannerSettings)
+
+    def __post_init__(self):
+        if self.n_vertices is not None and self.n_vertices < 2:
+            raise ValueError(f"n_vertices must be at least 2, got {self.n_vertices}")
+        if not 0.0 <= self.bias_fraction <= 1.0:
+            raise ValueError(f"bias_fraction must be in [0, 1], got {self.bias_fraction}")
+        if not 0.0 <= self.region_fraction <= 1.0 or self.region_inflation <= 0:
+            raise ValueError("region_fraction must be in [0, 1] and region_inflation > 0, got "
+                             f"{self.region_fraction}, {self.region_inflation}")
+        if self.min_free_per_step < 0 or self.extra_posture_rounds < 0:
+            raise ValueError("min_free_per_step and extra_posture_rounds must be >= 0, got "
+                             f"{self.min_free_per_step}, {self.extra_posture_rounds}")
+        if not 0.0 <= self.posture_share <= 1.0 or self.posture_spread < 0:
+            raise ValueError("posture_share must be in [0, 1] and posture_spread >= 0, got "
+                             f"{self.posture_share}, {self.posture_spread}")
+        if not self.object_radius >= 0:
+            raise ValueError(f"object_radius must be >= 0, got {self.object_radius}")
+        if self.regrow_distance <= 0 or self.regrow_vertices < 0:
+            raise ValueError("regrow_distance must be > 0 and regrow_vertices >= 0, got "
+                             f"{self.regrow_distance}, {self.regrow_vertices}")

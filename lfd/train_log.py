@@ -1,0 +1,73 @@
+"""The training command's log: progress lines on stdout and TensorBoard scalars and images.
+
+``lfd.train_cli`` (``lfd-train`` / ``train.py``) owns the one ``SummaryWriter`` through ``Logger``;
+the library (``lfd.learning``) reports through callbacks and writes no logs.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Logger"]
+
+
+class Logger:
+    """Progress on stdout and TensorBoard scalars/images (the only SummaryWriter owner).
+
+    ``quiet``: no line per EM iteration. Without TensorBoard installed it says so once on stderr
+    and writes no logs."""
+
+    def __init__(self, out: Path, joint_names, quiet: bool = False, prog: str = "lfd-train"):
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+        except ImportError as e:
+            self.writer = None
+            print(f"{prog}: warning: TensorBoard is not installed ({e}), so no TensorBoard logs are written "
+                  f"to {out / 'tensorboard'}; pip install tensorboard to have them", file=sys.stderr, flush=True)
+        else:
+            self.writer = SummaryWriter(str(out / "tensorboard"))
+        self.joint_names = list(joint_names)
+        self.quiet = quiet
+        self.step = 0
+        self.t0 = time.perf_counter()
+
+    def __call__(self, ev: dict) -> None:
+        self.step += 1
+        tag = f"{ev['stage']}{ev['restart']}"
+        if not self.quiet:
+            print(f"[{time.perf_counter() - self.t0:6.1f}s] {ev['stage']} {ev['restart']} iter {ev['iteration'] + 1}: "
+                  f"loss {ev['loss']:.4f}  tool {np.round(ev['tool'], 3).tolist()}", flush=True)
+        w = self.writer
+        if w is None:
+            return
+        w.add_scalar(f"loss/{tag}", ev["loss"], ev["iteration"])
+        w.add_scalar("loss/all", ev["loss"], self.step)
+        for name, x in zip(ev["landmarks"], ev["env"]):
+            w.add_scalar(f"landmarks/{name}", float(x), self.step)
+        for axis, x in zip("xyz", ev["tool"]):
+            w.add_scalar(f"tool/{axis}", float(x), self.step)
+
+    def final(self, result) -> None:
+        w = self.writer
+        if w is None:
+            return
+        m = result.model
+        std = np.sqrt(np.diagonal(m.covariances.cpu().numpy(), axis1=1, axis2=2))  # (T, F)
+        names = self.joint_names + ["task_x", "task_y", "task_z"]
+        for t in range(m.time_steps):
+            for j, n in enumerate(names):
+                w.add_scalar(f"features/std/{n}", float(std[t, j]), t)
+            w.add_scalar("alignment/effective_demos", result.effective_demos[t], t)
+        for i, a in enumerate(result.alignments):
+            img = np.zeros((1, m.time_steps, len(a)), dtype=np.float32)  # (C, H = step, W = sample)
+            img[0, a, np.arange(len(a))] = 1.0
+            w.add_image(f"alignment/demo_{i:02d}", img, 0)
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
