@@ -42,8 +42,9 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pybullet as p
 
-from lfd.timing import PROFILES, plan_segments, profile_at, step_clock
+from lfd.timing import PROFILES, plan_segments, step_clock
 from sim import layout as L
+from sim.follow import PlanFollower
 
 __all__ = ["LATENCIES", "PACES", "ExecSettings", "RunResult", "execute_plan", "parse_latency"]
 
@@ -183,79 +184,6 @@ def _relevant(names, poses, keep) -> np.ndarray:
     return np.asarray(poses)[idx, :3, 3]
 
 
-class _Follower:
-    """The plan being executed: its timed segments ``(q0, q1, duration, time_step)`` and the
-    robot's position along them, ``(i, t)``: segment i, t seconds into it (``i == len``: done)."""
-
-    def __init__(self, segs, profile: str, final_step: int, elapsed: float = 0.0):
-        self.segs, self.profile, self.final_step = segs, profile, final_step
-        self.elapsed0 = elapsed  # time already spent in the first segment's step
-        self.i, self.t = 0, 0.0
-
-    @property
-    def done(self) -> bool:
-        return self.i >= len(self.segs)
-
-    @property
-    def position(self) -> tuple[int, float]:
-        return self.i, self.t
-
-    def step_at(self, pos) -> int:
-        return self.segs[pos[0]][3] if pos[0] < len(self.segs) else self.final_step
-
-    def q_at(self, pos) -> np.ndarray:
-        i, t = pos
-        if i >= len(self.segs):
-            return self.segs[-1][1]
-        q0, q1, dur, _ = self.segs[i]
-        prog, _ = profile_at(min(1.0, t / dur) if dur > 0 else 1.0, self.profile)
-        return q0 + prog * (q1 - q0)
-
-    def advance(self) -> tuple[np.ndarray, np.ndarray]:
-        """One simulation step along the plan: ``(q_cmd, qdot)``."""
-        q0, q1, dur, _ = self.segs[self.i]
-        self.t += L.SIM_DT
-        a = min(1.0, self.t / dur) if dur > 0 else 1.0
-        prog, rate = profile_at(a, self.profile)
-        q_cmd = q0 + prog * (q1 - q0)
-        qdot = rate * (q1 - q0) / dur if dur > 0 and a < 1.0 else np.zeros_like(q0)
-        if a >= 1.0:
-            self.i, self.t = self.i + 1, 0.0
-        return q_cmd, qdot
-
-    def predict(self, seconds: float) -> tuple[int, float]:
-        """Where the robot will be ``seconds`` from now (in whole simulation steps)."""
-        i, t = self.i, self.t
-        left = int(round(seconds / L.SIM_DT)) * L.SIM_DT
-        while i < len(self.segs) and left > 1e-12:
-            dur = self.segs[i][2]
-            steps_left = max(0.0, dur - t)
-            if left < steps_left - 1e-12:
-                return i, t + left
-            left -= steps_left
-            i, t = i + 1, 0.0
-        return i, t
-
-    def elapsed_at(self, pos) -> float:
-        """Time spent in the time step of ``pos`` when the robot is there."""
-        i, t = pos
-        if i >= len(self.segs):
-            return 0.0
-        step, spent = self.segs[i][3], t
-        for k in range(i - 1, -1, -1):
-            if self.segs[k][3] != step:
-                return spent
-            spent += self.segs[k][2]
-        return spent + self.elapsed0
-
-    def back_to(self, pos, q_now: np.ndarray) -> list[np.ndarray]:
-        """Waypoints from ``q_now`` (the current position) back along the plan to ``pos``."""
-        q_to = self.q_at(pos)
-        back = [q_now] + [self.segs[k][0] for k in range(min(self.i, len(self.segs) - 1), pos[0], -1)]
-        back.append(q_to)
-        return [q for j, q in enumerate(back) if j == 0 or np.any(q != back[j - 1])]
-
-
 def _tracking_error(planner, q_cmd: np.ndarray, q_act: np.ndarray) -> float:
     """Largest distance (m) between the commanded and the actual place of the arm's frames and
     of the model's tool point (``TaskPlanner.keypoints``)."""
@@ -280,86 +208,160 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
     list, receives rendered RGB frames every ``settings.frame_every`` steps. The world runs on
     while the planner works (``settings.latency``; see the module docstring).
     """
-    s = settings or ExecSettings()
-    model = planner.model
-    vmax = model.kin.velocity.cpu().numpy()
-    dt = float(model.task.dt) if model.task is not None else 0.1
-    tool = model.tool.detach().cpu().numpy()
-    keep = model.landmark_names
-    clock = (step_clock(model.log_trans.detach().cpu().numpy(), model.offsets, dt)
-             if s.pace == "demonstrated" else None)  # (T,)
-    accel = s.accel if s.profile == "min-jerk" else None
-    frozen = s.latency == "none"
-    result = RunResult(latency_mode=str(s.latency))
-    q_cmd = np.asarray(L.HOME_Q if q_start is None else q_start, dtype=float)
-    qdot = np.zeros_like(q_cmd)
-    world.set_q(q_cmd)
-    world.respawn_particles()
-    world.step(int(0.3 / L.SIM_DT))  # let the particles settle in the tool
-    contacts = _ContactLog(world)
-    step = 0
+    return _ClosedLoop(world, planner, scenario, settings or ExecSettings(), q_start, frames).run()
 
-    def sim_step() -> None:
-        nonlocal step
-        world.command_q(q_cmd, force=s.force, qdot=qdot)
-        world.step(1)
-        step += 1
-        contacts.poll(step * L.SIM_DT)
-        if step % s.record_every == 0:
-            T = world.T_world_gripper()
-            result.task_point_path.append((T[:3, :3] @ tool + T[:3, 3]).round(5).tolist())
-            err = _tracking_error(planner, q_cmd, world.get_q())
-            result.tracking_max_mm = max(result.tracking_max_mm, round(err * 1e3, 2))
-        if frames is not None and s.frame_every and step % s.frame_every == 0:
-            frames.append(world.render(480, 360))
 
-    names, poses = world.sensed_landmarks()
-    tic = time.perf_counter()
-    planner.update_landmarks(names, poses)
-    result.build_ms = (time.perf_counter() - tic) * 1e3
-    res = planner.plan(q_cmd, 0)
-    result.initial_ms = res.latency_s * 1e3
-    result.plan_statuses.append(res.status)
-    result.edges_evaluated.append(res.n_edges_evaluated)
-    if not res.ok:
-        result.reason = f"no initial plan: {res.status} ({res.message})"
+class _ClosedLoop:
+    """One closed-loop run (``execute_plan``): the arm's command, the plan it follows, the plan
+    on its way, and the ``RunResult`` being filled."""
+
+    def __init__(self, world, planner, scenario, s: ExecSettings, q_start, frames: list | None):
+        self.world, self.planner, self.scenario, self.s, self.frames = world, planner, scenario, s, frames
+        model = planner.model
+        self.vmax = model.kin.velocity.cpu().numpy()
+        self.dt = float(model.task.dt) if model.task is not None else 0.1
+        self.tool = model.tool.detach().cpu().numpy()
+        self.keep = model.landmark_names
+        self.clock = (step_clock(model.log_trans.detach().cpu().numpy(), model.offsets, self.dt)
+                      if s.pace == "demonstrated" else None)  # (T,)
+        self.accel = s.accel if s.profile == "min-jerk" else None
+        self.result = RunResult(latency_mode=str(s.latency))
+        self.q_cmd = np.asarray(L.HOME_Q if q_start is None else q_start, dtype=float)
+        self.qdot = np.zeros_like(self.q_cmd)
+        self.step = 0
+        self.follow: PlanFollower | None = None
+        self.pending: dict | None = None  # a plan on its way: {"arrive": sim step, "res", "pos": where it starts}
+        self.search_s: dict = {}  # the last search's time of each kind of re-plan
+        self.planned_at: np.ndarray | None = None  # task landmark positions the current plan is for
+        self.contacts: _ContactLog | None = None
+
+    def run(self) -> RunResult:
+        world, s, result = self.world, self.s, self.result
+        world.set_q(self.q_cmd)
+        world.respawn_particles()
+        world.step(int(0.3 / L.SIM_DT))  # let the particles settle in the tool
+        self.contacts = _ContactLog(world)
+        if not self._first_plan():
+            return result
+        sense_every = max(1, int(round(s.sense_period / L.SIM_DT)))
+        moved = self.scenario is None or self.scenario.bowl_after is None
+        assert self.follow is not None  # set by _first_plan
+        while not self.follow.done or self.pending is not None:
+            if self._take_over_arrived_plan():
+                break
+            if self.follow.done:  # the old plan ended before the new one arrived: hold
+                self.qdot = np.zeros_like(self.q_cmd)
+            else:
+                self.q_cmd, self.qdot = self.follow.advance()
+            self._sim_step()
+            if self.step % sense_every or self.pending is not None:
+                continue
+            if not moved and self.follow.step_at(self.follow.position) >= self.scenario.move_at_step:
+                world.move_object("bowl", self.scenario.bowl_after)
+                moved = True
+            self._sense()
+        _settle_and_judge(world, self.contacts, result, s, self.step, self.frames)
         return result
-    for _ in range(int(round(_latency_s(s.latency, res.latency_s) / L.SIM_DT))):
-        sim_step()  # the arm holds while the first plan is made (the roadmap was built before)
-    planned_at = _relevant(names, poses, keep)
 
-    def timed(configurations, time_steps, elapsed=0.0):
-        return _Follower(plan_segments(configurations, time_steps, vmax, dt, s.speed, clock, accel,
-                                       elapsed=elapsed), s.profile, int(time_steps[-1]), elapsed)
+    def _sim_step(self) -> None:
+        """One physics step towards the command; contacts, the recorded path and video frames."""
+        world, s, result = self.world, self.s, self.result
+        world.command_q(self.q_cmd, force=s.force, qdot=self.qdot)
+        world.step(1)
+        self.step += 1
+        assert self.contacts is not None  # made before the first step
+        self.contacts.poll(self.step * L.SIM_DT)
+        if self.step % s.record_every == 0:
+            T = world.T_world_gripper()
+            result.task_point_path.append((T[:3, :3] @ self.tool + T[:3, 3]).round(5).tolist())
+            err = _tracking_error(self.planner, self.q_cmd, world.get_q())
+            result.tracking_max_mm = max(result.tracking_max_mm, round(err * 1e3, 2))
+        if self.frames is not None and s.frame_every and self.step % s.frame_every == 0:
+            self.frames.append(world.render(480, 360))
 
-    follow = timed(res.configurations, res.time_steps)
-    sense_every = max(1, int(round(s.sense_period / L.SIM_DT)))
-    moved = scenario is None or scenario.bowl_after is None
-    pending = None  # a plan on its way: {"arrive": sim step, "res", "pos": where it starts}
-    search_s = {"move": res.latency_s, "growth": res.latency_s}  # the last search of each kind
+    def _first_plan(self) -> bool:
+        """The roadmap's build and the first plan, the arm holding while it is made; False (the
+        reason in the result) when there is none."""
+        result = self.result
+        names, poses = self.world.sensed_landmarks()
+        tic = time.perf_counter()
+        self.planner.update_landmarks(names, poses)
+        result.build_ms = (time.perf_counter() - tic) * 1e3
+        res = self.planner.plan(self.q_cmd, 0)
+        result.initial_ms = res.latency_s * 1e3
+        result.plan_statuses.append(res.status)
+        result.edges_evaluated.append(res.n_edges_evaluated)
+        if not res.ok:
+            result.reason = f"no initial plan: {res.status} ({res.message})"
+            return False
+        for _ in range(int(round(_latency_s(self.s.latency, res.latency_s) / L.SIM_DT))):
+            self._sim_step()  # the arm holds while the first plan is made (the roadmap was built before)
+        self.planned_at = _relevant(names, poses, self.keep)
+        self.follow = self._timed(res.configurations, res.time_steps)
+        self.search_s = {"move": res.latency_s, "growth": res.latency_s}
+        return True
 
-    def forecast(kind: str, spent_s: float) -> float:
+    def _timed(self, configurations, time_steps, elapsed: float = 0.0) -> PlanFollower:
+        return PlanFollower(plan_segments(configurations, time_steps, self.vmax, self.dt, self.s.speed, self.clock,
+                                          self.accel, elapsed=elapsed), self.s.profile, int(time_steps[-1]), elapsed)
+
+    def _take_over_arrived_plan(self) -> bool:
+        """Switch to a plan that arrived once the robot is where it starts (or has passed it:
+        then the robot retraces the waypoints back to there, a motion it has just made).
+        Returns True when the new plan is already done (nothing left to execute)."""
+        pending, follow = self.pending, self.follow
+        assert follow is not None
+        if pending is None or self.step < pending["arrive"] or not (follow.done or follow.position >= pending["pos"]):
+            return False
+        new, pos = pending["res"], pending["pos"]
+        self.pending = None
+        back = follow.back_to(pos, self.q_cmd)
+        confs = np.concatenate([np.asarray(back[:-1]).reshape(-1, len(self.q_cmd)), new.configurations])
+        steps = np.concatenate([np.full(len(back) - 1, new.time_steps[0]), new.time_steps])
+        self.follow = self._timed(confs, steps, follow.elapsed_at(pos))
+        self.result.switches += 1
+        self.result.retraced += len(back) - 1
+        return self.follow.done
+
+    def _sense(self) -> None:
+        """Read the landmarks: a task landmark that moved asks for a plan; otherwise, while the
+        roadmap still grows for a far move, a growth round and a better plan (anytime)."""
+        s, result = self.s, self.result
+        names, poses = self.world.sensed_landmarks()
+        now = _relevant(names, poses, self.keep)
+        assert self.planned_at is not None
+        if now.shape == self.planned_at.shape and np.abs(now - self.planned_at).max() <= s.replan_threshold:
+            if getattr(self.planner, "growth_pending", False) and result.n_replans < s.max_replans:
+                self._replan("growth")
+            return
+        if result.n_replans >= s.max_replans:
+            return
+        self.planned_at = now
+        self._replan("move", names, poses)
+
+    def _forecast(self, kind: str, spent_s: float) -> float:
         """Seconds from now until a plan being made (``spent_s`` of it done) arrives."""
-        if s.latency == "none":
+        if self.s.latency == "none":
             return 0.0
-        if s.latency == "measured":
-            return spent_s + search_s[kind]
-        return float(s.latency)
+        if self.s.latency == "measured":
+            return spent_s + self.search_s[kind]
+        return float(self.s.latency)
 
-    def replan(kind: str, names=None, poses=None) -> None:
+    def _replan(self, kind: str, names=None, poses=None) -> None:
         """A new plan, made now (wall clock) from where the robot is expected to be when it
         arrives, the charged latency later; the robot follows the current plan meanwhile."""
-        nonlocal pending
+        planner, result, follow = self.planner, self.result, self.follow
+        assert follow is not None
         tic = time.perf_counter()
         if kind == "move":
-            planner.update_landmarks(names, poses, grow=frozen)
+            planner.update_landmarks(names, poses, grow=self.s.latency == "none")
         elif not planner.grow(rounds=1):
             return  # the landmarks stayed near a place the roadmap was grown for
         update_s = time.perf_counter() - tic
-        pos = follow.predict(forecast(kind, update_s))
+        pos = follow.predict(self._forecast(kind, update_s))
         res = planner.plan(follow.q_at(pos), follow.step_at(pos))
         wall = time.perf_counter() - tic
-        search_s[kind] = res.latency_s
+        self.search_s[kind] = res.latency_s
         result.n_replans += 1
         result.replan_kind.append(kind)
         result.replan_steps.append([int(follow.step_at(follow.position)), int(follow.step_at(pos))])
@@ -367,49 +369,10 @@ def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = 
         result.replan_ms.append(res.latency_s * 1e3)
         result.plan_statuses.append(res.status)
         result.edges_evaluated.append(res.n_edges_evaluated)
-        charged = _latency_s(s.latency, wall)
+        charged = _latency_s(self.s.latency, wall)
         result.charged_ms.append(charged * 1e3)
         if res.ok:
-            pending = {"arrive": step + int(round(charged / L.SIM_DT)), "res": res, "pos": pos}
-
-    while not follow.done or pending is not None:
-        # a plan that arrived takes over once the robot is where it starts (or has passed it:
-        # then the robot retraces the waypoints back to there, a motion it has just made)
-        if pending is not None and step >= pending["arrive"] and \
-                (follow.done or follow.position >= pending["pos"]):
-            new, pos = pending["res"], pending["pos"]
-            pending = None
-            back = follow.back_to(pos, q_cmd)
-            confs = np.concatenate([np.asarray(back[:-1]).reshape(-1, len(q_cmd)), new.configurations])
-            steps = np.concatenate([np.full(len(back) - 1, new.time_steps[0]), new.time_steps])
-            follow = timed(confs, steps, follow.elapsed_at(pos))
-            result.switches += 1
-            result.retraced += len(back) - 1
-            if follow.done:
-                break
-        if follow.done:  # the old plan ended before the new one arrived: hold
-            qdot = np.zeros_like(q_cmd)
-        else:
-            q_cmd, qdot = follow.advance()
-        sim_step()
-        if step % sense_every or pending is not None:
-            continue
-        t_now = follow.step_at(follow.position)
-        if not moved and t_now >= scenario.move_at_step:
-            world.move_object("bowl", scenario.bowl_after)
-            moved = True
-        names, poses = world.sensed_landmarks()
-        now = _relevant(names, poses, keep)
-        if now.shape == planned_at.shape and np.abs(now - planned_at).max() <= s.replan_threshold:
-            if getattr(planner, "growth_pending", False) and result.n_replans < s.max_replans:
-                replan("growth")  # anytime: the roadmap grows for the new place, then a better plan
-            continue
-        if result.n_replans >= s.max_replans:
-            continue
-        planned_at = now
-        replan("move", names, poses)
-    _settle_and_judge(world, contacts, result, s, step, frames)
-    return result
+            self.pending = {"arrive": self.step + int(round(charged / L.SIM_DT)), "res": res, "pos": pos}
 
 
 def _settle_and_judge(world, contacts: _ContactLog, result: RunResult, s: ExecSettings, step: int,
