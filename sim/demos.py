@@ -42,7 +42,7 @@ from lfd.robot.ik import IKConfig, solve_ik
 from lfd.robot.kinematics import KinematicModel
 from lfd.robot.robots import BAXTER_LEFT
 from sim import layout as L
-from sim.demo_paths import TASK_POINTS, DemoPath, bowl_frame_path, draw_path
+from sim.demo_paths import TASK_POINTS, DemoPath, draw_path
 
 __all__ = [
     "DEFAULT_PLACEMENT",
@@ -52,7 +52,6 @@ __all__ = [
     "bowl_positions",
     "generate",
     "main",
-    "plot_demos",
     "replay",
     "track_path",
 ]
@@ -339,37 +338,6 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
     return paths
 
 
-def plot_demos(attempts, tool_point, out_png, title: str = "") -> Path:
-    """Draw the task point's path relative to the bowl for ``attempts`` (side and top views)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    kin = KinematicModel.from_spec(BAXTER_LEFT, dtype=torch.float64)
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
-    for k, a in enumerate(attempts):
-        T = kin.fk(torch.as_tensor(a.q)).numpy()
-        pw = T[:, :3, 3] + np.einsum("sij,j->si", T[:, :3, :3], np.asarray(tool_point))
-        rel = bowl_frame_path(pw, a.path.bowl_xy)
-        t = np.arange(len(a.q)) * (a.path.t[1] - a.path.t[0])
-        axes[0].plot(rel[:, 0], rel[:, 2], lw=1, label=f"demo {k}")
-        axes[1].plot(rel[:, 0], rel[:, 1], lw=1)
-        axes[2].plot(t, np.linalg.norm(rel[:, :2], axis=1), lw=1)
-    for ax, (xl, yl) in zip(axes, [("x - bowl (m)", "z - bowl bottom (m)"), ("x - bowl (m)", "y - bowl (m)"),
-                                   ("time (s)", "horizontal distance to bowl (m)")]):
-        ax.set_xlabel(xl), ax.set_ylabel(yl), ax.grid(alpha=0.3)
-    axes[0].add_patch(plt.Rectangle((-L.BOWL_RADIUS, 0), 2 * L.BOWL_RADIUS, L.BOWL_HEIGHT, color="g", alpha=0.3))
-    axes[1].add_patch(plt.Circle((0, 0), L.BOWL_RADIUS, color="g", alpha=0.3))
-    axes[0].set_aspect("equal"), axes[1].set_aspect("equal")
-    axes[0].legend(fontsize=7)
-    fig.suptitle(title or "task point relative to the bowl")
-    fig.tight_layout()
-    out_png = Path(out_png)
-    fig.savefig(out_png, dpi=90)
-    plt.close(fig)
-    return out_png
-
-
 def main(argv=None) -> int:
     ap = ArgumentParser(prog="python -m sim.demos", description="Generate simulated kinesthetic demonstrations.")
     ap.add_argument("--task", required=True, help="powder or pour")
@@ -400,6 +368,7 @@ def main(argv=None) -> int:
         print(f"python -m sim.demos: {e}", file=sys.stderr)
         return 1
     if args.plot:
+        from sim.demo_plot import plot_demos
         plot_demos(kept, args.task_point or TASK_POINTS[args.task], args.plot, f"{args.task}: {args.n} demonstrations")
     return 0
 

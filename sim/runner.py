@@ -23,10 +23,10 @@ EXEC_PACE = "demonstrated"
 
 def planner_settings(roadmap_size: int | None, seed: int, task: str, tool_point):
     """The ``TaskPlannerSettings`` of an evaluation run (and of ``plan.py``'s single plans): the
-    sweep margin of the task's tool around the model's tool point (``sim.collision.sweep_margin``)."""
+    sweep margin of the task's tool around the model's tool point (``sim.arm_geometry.sweep_margin``)."""
     from lfd.planning.planner import PlannerSettings
     from lfd.planning.task_planner import TaskPlannerSettings
-    from sim.collision import sweep_margin
+    from sim.arm_geometry import sweep_margin
     margin = sweep_margin(task, tool_point.detach().cpu().numpy())
     return TaskPlannerSettings(n_vertices=roadmap_size, seed=seed, planner=PlannerSettings(sweep_margin=margin))
 

@@ -183,7 +183,7 @@ def test_every_configuration_closer_than_the_margin_collides(world, fns, fns_no_
 def test_joint_levers_bound_how_far_any_arm_point_moves(world):
     """``sum_j lever_j |dq_j|`` bounds the motion of every link origin after the joints (and of
     the tool's far end), measured with PyBullet's own link poses on random small moves."""
-    from sim.collision import joint_levers
+    from sim.arm_geometry import joint_levers
     levers = joint_levers(world)
     assert levers.shape == (7,) and np.all(np.diff(levers) < 0) and levers[-1] > 0.15
     rng = np.random.default_rng(0)
