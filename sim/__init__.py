@@ -11,7 +11,7 @@ import contextlib
 import os
 import sys
 
-__all__ = ["quiet_stdio"]
+__all__ = ["quiet_stdio", "require_pybullet"]
 
 
 @contextlib.contextmanager
@@ -37,9 +37,18 @@ def quiet_stdio():
             os.close(copy)
 
 
-try:
+try:  # PyBullet prints a banner on import: imported once here, quietly; later imports are cached
     with quiet_stdio():
-        import pybullet  # noqa: F401  (imported once, quietly; later imports are cached)
-except ImportError as e:  # the plain install: the library (lfd) works, the simulator needs its extra
-    raise ImportError(f"the simulator (sim, lfd-plan) needs PyBullet, which is not installed ({e}); "
-                      f"install the package with its sim extra: pip install \"lfd-landmarks[sim]\"") from e
+        import pybullet  # noqa: F401
+except ImportError:  # the plain install (no [sim] extra): ``lfd-plan --help`` still works, and
+    pass  # ``require_pybullet`` names the extra before anything needs the simulator
+
+
+def require_pybullet() -> None:
+    """Raise ``lfd.cli.UsageError`` naming the extra to install when PyBullet is missing."""
+    import importlib.util
+
+    if importlib.util.find_spec("pybullet") is None:
+        from lfd.cli import UsageError
+        raise UsageError("the simulator (lfd-plan, sim) needs PyBullet, which is not installed: "
+                         "pip install \"lfd-landmarks[sim]\"")

@@ -34,7 +34,7 @@ import numpy as np
 from lfd.cli import USER_ERRORS, UsageError, error_line
 from lfd.train_cli import ensure_demos
 from lfd.train_cli import main as train_main
-from sim.execute import parse_latency
+from sim.latency import parse_latency
 from sim.report import format_table, spread, strict_json, summarize
 from sim.runner import EXEC_PACE, init_worker, model_files, run_one, run_one_shipped
 from sim.scenarios import MAX_BASE_SEED, draw_scenarios

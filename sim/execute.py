@@ -45,24 +45,11 @@ import pybullet as p
 from lfd.timing import PROFILES, plan_segments, step_clock
 from sim import layout as L
 from sim.follow import PlanFollower
+from sim.latency import charged_s, parse_latency
 
-__all__ = ["LATENCIES", "PACES", "ExecSettings", "RunResult", "execute_plan", "parse_latency"]
+__all__ = ["PACES", "ExecSettings", "RunResult", "execute_plan"]
 
 PACES = ("demonstrated", "fastest")
-LATENCIES = ("measured", "none")
-
-
-def parse_latency(value) -> str | float:
-    """``"measured"``, ``"none"`` or a fixed latency in seconds (a number, or its text) >= 0."""
-    if isinstance(value, str) and value in LATENCIES:
-        return value
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"latency must be 'measured', 'none' or seconds >= 0, got {value!r}") from None
-    if not (math.isfinite(x) and x >= 0):
-        raise ValueError(f"latency must be 'measured', 'none' or seconds >= 0, got {value!r}")
-    return x
 
 
 @dataclass(frozen=True)
@@ -191,15 +178,6 @@ def _tracking_error(planner, q_cmd: np.ndarray, q_act: np.ndarray) -> float:
     return float(np.linalg.norm(P[0] - P[1], axis=-1).max())
 
 
-def _latency_s(mode, wall_s: float) -> float:
-    """Simulated seconds a plan that took ``wall_s`` of wall-clock time is charged."""
-    if mode == "measured":
-        return wall_s
-    if mode == "none":
-        return 0.0
-    return float(mode)
-
-
 def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = None,
                  q_start=None, frames: list | None = None) -> RunResult:
     """Run the task closed-loop in ``world`` with ``planner`` (an ``lfd.planning.task_planner.TaskPlanner``).
@@ -294,7 +272,7 @@ class _ClosedLoop:
         if not res.ok:
             result.reason = f"no initial plan: {res.status} ({res.message})"
             return False
-        for _ in range(int(round(_latency_s(self.s.latency, res.latency_s) / L.SIM_DT))):
+        for _ in range(int(round(charged_s(self.s.latency, res.latency_s) / L.SIM_DT))):
             self._sim_step()  # the arm holds while the first plan is made (the roadmap was built before)
         self.planned_at = _relevant(names, poses, self.keep)
         self.follow = self._timed(res.configurations, res.time_steps)
@@ -369,7 +347,7 @@ class _ClosedLoop:
         result.replan_ms.append(res.latency_s * 1e3)
         result.plan_statuses.append(res.status)
         result.edges_evaluated.append(res.n_edges_evaluated)
-        charged = _latency_s(self.s.latency, wall)
+        charged = charged_s(self.s.latency, wall)
         result.charged_ms.append(charged * 1e3)
         if res.ok:
             self.pending = {"arrive": self.step + int(round(charged / L.SIM_DT)), "res": res, "pos": pos}

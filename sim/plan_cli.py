@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
+from sim import require_pybullet
 from sim.scenarios import MAX_BASE_SEED, MAX_SCENARIO_SEED
 
 __all__ = ["PROG", "build_parser", "cli", "main", "parse"]
@@ -93,7 +94,7 @@ def parse(argv=None, prog: str = PROG):
     """The options of ``argv`` (default ``sys.argv[1:]``), checked; ``UsageError`` (or argparse's
     exit 2) on bad input."""
     args = build_parser(prog).parse_args(argv)
-    from sim.execute import parse_latency
+    from sim.latency import parse_latency
     try:
         args.latency = str(parse_latency(args.latency))
     except ValueError as e:
@@ -132,6 +133,7 @@ def main(argv=None, prog: str = PROG) -> int:
     """``lfd-plan`` / ``python plan.py``: 0 when every plan succeeded, 1 when one failed; raises
     ``UsageError`` (and the other ``lfd.cli.USER_ERRORS``) on bad input."""
     args = parse(argv, prog=prog)
+    require_pybullet()
     if args.evaluate:
         from sim.evaluate import VARIANTS, EvalSettings, TrainingFailed, evaluate, format_table, model_dir_for
         from sim.model_check import check_models_for_task

@@ -172,3 +172,20 @@ def test_demo_job_runs_its_stages_in_process(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(sim.plan_cli, "main", lambda argv: 2)
     assert job.cli() == 2 and not any(c[0] == "demos" for c in calls)  # demonstrations exist: kept
     assert "make demo: lfd-plan failed with exit status 2" in capsys.readouterr().err
+
+
+def test_lfd_plan_without_pybullet_has_help_and_one_clear_line():
+    """The plain install (no [sim] extra): ``lfd-plan --help`` works, and a command that needs the
+    simulator stops with one line naming the extra (PyBullet hidden from a fresh interpreter)."""
+    import subprocess
+    code = ("import sys\n"
+            "sys.modules['pybullet'] = None  # import pybullet now raises ImportError\n"
+            "from lfd.cli import run_main\n"
+            "from sim import plan_cli\n"
+            "run_main(plan_cli.main, prog='lfd-plan')\n")
+    help_ = subprocess.run([sys.executable, "-c", code, "--help"], capture_output=True, text=True, timeout=120)
+    assert help_.returncode == 0 and "--evaluate" in help_.stdout, help_.stderr
+    r = subprocess.run([sys.executable, "-c", code, "--evaluate", "--task", "powder"], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0, r.stderr
+    assert 'pip install "lfd-landmarks[sim]"' in r.stderr
