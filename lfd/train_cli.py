@@ -27,6 +27,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import re
 import shlex
 import shutil
 import sys
@@ -36,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
+from lfd.learning.tasks import TASKS
 from lfd.train_log import Logger
 
 __all__ = [
@@ -52,6 +54,8 @@ __all__ = [
 ]
 
 PROG = "lfd-train"
+BUILT_IN_TASKS = tuple(TASKS)  # demonstrations can be generated for these (lfd.demo_generators)
+TASK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")  # a task name is also a folder name (./runs/<task>)
 
 # The paper's names of the landmark choices (its tables' rows; ``plan.py --variants`` combines them
 # as tool+env), mapped to ``lfd.learning.learn.FitConfig``'s values, which are accepted as aliases.
@@ -101,10 +105,13 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     p = ArgumentParser(prog=prog, description="Learn a task model from demonstrations (lfd-train; python "
                                               "train.py in a source checkout). Relative paths and the "
                                               "defaults are taken from the current working directory.")
-    p.add_argument("--task", required=True, choices=("powder", "pour"), help="the task to learn (required)")
+    p.add_argument("--task", required=True, metavar="NAME",
+                   help="the task to learn, as the demonstrations' task.json names it (required); the built-in "
+                        f"tasks ({', '.join(BUILT_IN_TASKS)}) can have their demonstrations generated, any "
+                        "other needs --demos")
     p.add_argument("--demos", type=Path, metavar="DIR",
                    help="demonstration folder (default: ./runs/demos/<task>, generated with the simulator "
-                        "when empty)")
+                        "when empty; only for the built-in tasks)")
     p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: ./runs/<task>)")
     p.add_argument("--tool", default="learned", choices=tuple(TOOL_CHOICES), metavar="{learned,manual,arbitrary}",
                    help="tool landmark: learned from the demonstrations, manual (the task's hand-picked tool "
@@ -159,6 +166,11 @@ def parse_args(argv=None, prog: str = PROG):
     if args.time_steps is not None and args.time_steps < 2:
         raise UsageError(f"--time-steps must be at least 2, got {args.time_steps}")
     check_device(args.device)
+    if not TASK_NAME.fullmatch(args.task):
+        raise UsageError(f"--task must be a name of letters, digits, '_' and '-', got {args.task!r}")
+    if args.demos is None and args.task not in BUILT_IN_TASKS:
+        raise UsageError(f"--task {args.task}: give --demos DIR with its demonstrations (they are generated only "
+                         f"for the built-in tasks {', '.join(BUILT_IN_TASKS)})")
     args.tool, args.env = TOOL_CHOICES[args.tool], ENV_CHOICES[args.env]
     return args
 

@@ -56,6 +56,15 @@ def _bad_pose():
     return T
 
 
+S1 = _demoset().demos[1].n_samples  # samples of demo_001.npz, which the broken cases rewrite
+
+
+def _tracked_bad_pose():
+    T = np.tile(np.eye(4), (S1, 3, 1, 1))
+    T[7, 1, :3, :3] *= 1.5
+    return T
+
+
 # (id, changes to demo_001.npz, expected message fragment)
 BROKEN = [
     ("missing-q", {"q": None}, r"missing key\(s\) \['q'\]"),
@@ -74,6 +83,9 @@ BROKEN = [
     ("pose-count", {"landmark_poses": np.tile(np.eye(4), (2, 1, 1))}, r"must have shape \(3, 4, 4\)"),
     ("pose-not-rigid", {"landmark_poses": _bad_pose()}, r"'marker_1' pose is not a rigid transform"),
     ("pose-nan", {"landmark_poses": np.full((3, 4, 4), np.nan)}, r"'landmark_poses' holds NaN"),
+    ("tracked-length", {"landmark_poses": np.tile(np.eye(4), (S1 - 1, 3, 1, 1))},
+     rf"must have shape \(3, 4, 4\) or, tracked, \({S1}, 3, 4, 4\)"),
+    ("tracked-not-rigid", {"landmark_poses": _tracked_bad_pose()}, r"'marker_1' pose at sample 7 is not a rigid"),
     ("landmark-names", {"landmark_names": np.array(["bowl", "marker_1", "vase"])}, r"landmark_names .* differ"),
     ("landmark-dup", {"landmark_names": np.array(["bowl", "bowl", "vase"])}, r"repeats a name"),
     ("joint-order", {"joint_names": np.array(list(reversed(BAXTER_LEFT.joint_names)))}, r"joint_names .* differ"),
@@ -196,3 +208,17 @@ def test_every_stride_option_takes_numpy_integers_and_refuses_the_rest():
     for bad in (0, -1, 2.0, np.float64(2), True, "2", None):
         with pytest.raises(ValueError, match="must be a whole number >= 1"):
             FitConfig(subsample=bad)
+
+
+def test_tracked_landmarks_load_and_subsample_with_their_samples(good_dir, kin):
+    """``landmark_poses (S, Z, 4, 4)``: one pose per sample (a tracked, moving landmark) loads
+    beside files that hold one pose per landmark, and thinning the samples thins the poses."""
+    T = np.tile(np.eye(4), (S1, 3, 1, 1))
+    T[:, 0, 0, 3] = np.linspace(0.5, 0.9, S1)  # the bowl slides 0.4 m during the demonstration
+    _rewrite(good_dir / "demo_001.npz", landmark_poses=T)
+    ds = load_demos(good_dir, kin=kin)
+    assert ds.demos[0].landmarks.shape == (3, 4, 4)
+    np.testing.assert_array_equal(ds.demos[1].landmarks, T)
+    thin = ds.subsample(3)
+    assert thin.demos[1].landmarks.shape == (len(T[::3]), 3, 4, 4) and thin.demos[0].landmarks.shape == (3, 4, 4)
+    np.testing.assert_array_equal(thin.demos[1].landmarks, T[::3])

@@ -175,7 +175,7 @@ CASES = [
     ("no-such-folder", lambda d, g: ["train.py", "--task", "powder", "--demos", str(d / "absent"), "--out",
                                      str(d / "out"), *RUN], "no such demonstration folder"),
     # arguments of train.py
-    ("unknown-task", lambda d, g: ["train.py", "--task", "stir"], "argument --task: invalid choice: 'stir'"),
+    ("own-task-without-demos", lambda d, g: ["train.py", "--task", "stir"], "--task stir: give --demos DIR"),
     ("bad-tool", _train("--tool", "spoon"), "argument --tool: invalid choice: 'spoon'"),
     ("bad-covariance", _train("--covariance", "diag"), "argument --covariance: invalid choice: 'diag'"),
     ("restarts-0", _train("--restarts", "0"), "--restarts must be at least 1, got 0"),
@@ -456,3 +456,38 @@ def test_plan_model_given_a_file_asks_for_the_folder(tmp_path, capsys, name):
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and "pass the model's folder" in lines[0], lines
         assert f"--model {given.parent}" in lines[0]
+
+
+def test_a_users_own_task_trains_and_plans_without_the_simulator(tmp_path, capsys):
+    """A task.json naming a task lfd does not ship (``reach``) trains with ``--task reach`` and
+    plans with ``TaskPlanner`` and the user's own collision callables; without ``--demos`` it is
+    refused with one line (only the built-in tasks have generated demonstrations)."""
+    from lfd.learning.model import TaskModel
+    from lfd.learning.synthetic import make_synthetic
+    from lfd.learning.tasks import TaskSpec
+    from lfd.planning.task_planner import TaskPlanner, TaskPlannerSettings
+    from lfd.robot.kinematics import KinematicModel
+    from lfd.train_cli import main
+
+    reach = TaskSpec(name="reach", dt=0.1, time_steps=4, manual_tool_point=(0.0, 0.0, 0.1),
+                     reference_landmark="bowl")
+    kin = KinematicModel.from_spec()
+    ds, _ = make_synthetic(kin, n_demos=3, time_steps=4, Z=2, seed=1, task=reach, samples_per_step=(3, 5))
+    save_demos(tmp_path / "demos", ds)
+    out = tmp_path / "model"
+    r = run_cli(main, "lfd-train", ["--task", "reach", "--demos", str(tmp_path / "demos"), "--out", str(out),
+                                    *RUN, "--quiet"], capsys)
+    assert r.returncode == 0, r.stderr
+    model = TaskModel.load(out, kin=kin)
+    assert model.task is not None and model.task.name == "reach"
+    planner = TaskPlanner(model, lambda q: False, lambda a, b: False, settings=TaskPlannerSettings(n_vertices=60))
+    poses = np.stack([ds.demos[0].landmarks[i] for i in range(len(ds.landmark_names))])
+    planner.update_landmarks(list(ds.landmark_names), poses)
+    res = planner.plan(ds.demos[0].q[0], 0)
+    assert res.ok and res.time_steps[-1] == 3
+    for argv, fragment in ((["--task", "reach"], "give --demos DIR"),
+                           (["--task", "re ach", "--demos", str(tmp_path / "demos")], "--task must be a name"),
+                           (["--task", "powder", "--demos", str(tmp_path / "demos"), *RUN],
+                            "demonstrations of task 'reach', not 'powder'")):
+        bad = run_cli(main, "lfd-train", argv, capsys)
+        assert bad.returncode == 2 and fragment in bad.stderr and bad.stderr.count("\n") == 1, bad.stderr

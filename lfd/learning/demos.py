@@ -17,7 +17,9 @@ key                 shape / type    meaning
 ``q``               (S, d) float    joint configurations, radians, one row per sample
 ``dt``              () float        sampling interval, seconds (> 0, the same in every file)
 ``joint_names``     (d,) str        names of the columns of ``q``, as in the URDF
-``landmark_poses``  (Z, 4, 4) float ``T_world_landmark`` of each sensed landmark (rigid)
+``landmark_poses``  (Z, 4, 4) float ``T_world_landmark`` of each sensed landmark (rigid), or
+                    (S, Z, 4, 4)    one pose per sample when the landmarks were tracked during
+                                    the demonstration (a hand that moves, a person)
 ``landmark_names``  (Z,) str        names, the same set and order in every file
 ``robot``           () str          JSON of ``lfd.robot.robots.RobotSpec.to_dict()``
 ==================  ==============  ======================================================
@@ -61,7 +63,8 @@ class DemoFormatError(UserInputError):
 
 @dataclass(frozen=True)
 class Demonstration:
-    """One demonstration: ``q: (S, d)``, sampling interval ``dt``, landmarks ``(Z, 4, 4)``."""
+    """One demonstration: ``q: (S, d)``, sampling interval ``dt``, landmarks ``(Z, 4, 4)`` (held
+    still) or ``(S, Z, 4, 4)`` (tracked: the pose of each landmark at each sample)."""
 
     q: np.ndarray
     dt: float
@@ -110,7 +113,9 @@ class DemoSet:
         stride = check_stride(stride, "subsample stride")
         if stride == 1:
             return self
-        demos = tuple(replace(d, q=d.q[::stride], dt=d.dt * stride) for d in self.demos)
+        demos = tuple(replace(d, q=d.q[::stride], dt=d.dt * stride,
+                              landmarks=d.landmarks[::stride] if np.ndim(d.landmarks) == 4 else d.landmarks)
+                      for d in self.demos)
         # the task's own learning stride is spent: the thinned set is learned from every sample
         task = replace(self.task, dt=self.task.dt * stride, subsample=1) if self.task is not None else None
         return replace(self, demos=demos, task=task)
@@ -205,6 +210,30 @@ def _as_names(where: str, key: str, value) -> tuple[str, ...]:
     return names
 
 
+def _landmark_poses(where: str, value, names: tuple, n_samples: int) -> np.ndarray:
+    """``landmark_poses`` checked: ``(Z, 4, 4)`` or ``(S, Z, 4, 4)`` (tracked, one pose per sample),
+    finite and rigid, ``Z`` the names' count."""
+    shape = f"({len(names)}, 4, 4) or, tracked, ({n_samples}, {len(names)}, 4, 4)"
+    if value.dtype.kind not in "fiu" or value.ndim not in (3, 4):
+        raise _fail(where, f"key 'landmark_poses' must be numeric of shape {shape} to match 'landmark_names' "
+                           f"and 'q', got dtype {value.dtype} and shape {value.shape}")
+    poses = _as_float(where, "landmark_poses", value, value.ndim)
+    if poses.shape[-3:] != (len(names), 4, 4) or (poses.ndim == 4 and poses.shape[0] != n_samples):
+        raise _fail(where, f"key 'landmark_poses' must have shape {shape} to match 'landmark_names' and 'q', "
+                           f"got {poses.shape}")
+    if poses.shape[-3] == 0:
+        raise _fail(where, "no sensed landmarks: 'landmark_poses' is empty")
+    ortho, det, bottom = rigid_errors(poses)
+    bad = np.argwhere((ortho > RIGID_TOLERANCE) | (det > RIGID_TOLERANCE) | (bottom > RIGID_TOLERANCE))
+    if bad.size:
+        idx = tuple(int(x) for x in bad[0])
+        at = f" at sample {idx[0]}" if poses.ndim == 4 else ""
+        raise _fail(where, f"landmark {names[idx[-1]]!r} pose{at} is not a rigid transform "
+                           f"(|R^T R - I| = {ortho[idx]:.2g}, |det R - 1| = {det[idx]:.2g}, "
+                           f"bottom row error {bottom[idx]:.2g})")
+    return poses
+
+
 def _check_one(path: Path, raw: dict) -> tuple[Demonstration, tuple, tuple, RobotSpec]:
     where = str(path)
     try:
@@ -221,19 +250,7 @@ def _check_one(path: Path, raw: dict) -> tuple[Demonstration, tuple, tuple, Robo
     dt = _as_float(where, "dt", raw["dt"], 0)
     if not dt > 0:
         raise _fail(where, f"key 'dt' (sampling interval) must be positive, got {float(dt)}")
-    poses = _as_float(where, "landmark_poses", raw["landmark_poses"], 3)
-    if poses.shape[1:] != (4, 4) or poses.shape[0] != len(landmark_names):
-        raise _fail(where, f"key 'landmark_poses' must have shape ({len(landmark_names)}, 4, 4) to match "
-                           f"'landmark_names', got {poses.shape}")
-    if poses.shape[0] == 0:
-        raise _fail(where, "no sensed landmarks: 'landmark_poses' is empty")
-    ortho, det, bottom = rigid_errors(poses)
-    bad = np.flatnonzero((ortho > RIGID_TOLERANCE) | (det > RIGID_TOLERANCE) | (bottom > RIGID_TOLERANCE))
-    if bad.size:
-        i = int(bad[0])
-        raise _fail(where, f"landmark {landmark_names[i]!r} pose is not a rigid transform "
-                           f"(|R^T R - I| = {ortho[i]:.2g}, |det R - 1| = {det[i]:.2g}, "
-                           f"bottom row error {bottom[i]:.2g})")
+    poses = _landmark_poses(where, raw["landmark_poses"], landmark_names, len(q))
     demo = Demonstration(q=q, dt=float(dt), landmarks=poses, name=path.stem)
     return demo, joint_names, landmark_names, robot
 

@@ -37,15 +37,30 @@ class FitData:
         self.sample = torch.cat([torch.arange(n, device=device) for n in self.lengths])  # (N,)
         with torch.no_grad():
             self.T_world_ee = kin.to(dtype, device).fk(self.q)  # (N, 4, 4), computed once
-        lm = np.stack([d.landmarks for d in demoset.demos])  # (M, Z, 4, 4)
-        self.T_lm_world = landmarks_inverse_tensor(torch.as_tensor(lm, dtype=dtype, device=device))
-        self.counts = torch.tensor(self.lengths, dtype=dtype, device=device)
+        # landmark poses: one row per demonstration when every landmark held still in each
+        # (Z, 4, 4), else one row per observation ((S, Z, 4, 4) tracked during the demonstration;
+        # a demonstration with still landmarks repeats its poses); lm_row maps an observation to
+        # its row, lm_demo a row to its demonstration, lm_counts the observations of each row
+        poses = [np.asarray(d.landmarks) for d in demoset.demos]
+        self.moving = any(p.ndim == 4 for p in poses)
+        if self.moving:
+            lm = np.concatenate([p if p.ndim == 4 else np.broadcast_to(p, (n, *p.shape))
+                                 for p, n in zip(poses, self.lengths)])  # (N, Z, 4, 4)
+            self.lm_row = torch.arange(self.N, device=device)
+            self.lm_demo = self.demo
+            self.lm_counts = torch.ones(self.N, dtype=dtype, device=device)
+        else:
+            lm = np.stack(poses)  # (M, Z, 4, 4)
+            self.lm_row = self.demo
+            self.lm_demo = torch.arange(self.M, device=device)
+            self.lm_counts = torch.tensor(self.lengths, dtype=dtype, device=device)
+        self.T_lm_world = landmarks_inverse_tensor(torch.as_tensor(lm, dtype=dtype, device=device))  # (R, Z, 4, 4)
 
     def features(self, tool, w, T_lm_world=None):
-        """``f (N, F)`` and the per-demo linear parts ``A (M, 3, 3)``."""
-        K = torch.einsum("z,mzij->mij", w, self.T_lm_world if T_lm_world is None else T_lm_world)
+        """``f (N, F)`` and the linear parts ``A (R, 3, 3)`` of ``K_virt^-1`` per landmark row."""
+        K = torch.einsum("z,rzij->rij", w, self.T_lm_world if T_lm_world is None else T_lm_world)
         p_world = self.T_world_ee[:, :3, :3] @ tool + self.T_world_ee[:, :3, 3]  # (N, 3)
-        Kn = K[self.demo]  # (N, 4, 4)
+        Kn = K[self.lm_row]  # (N, 4, 4)
         x = torch.einsum("nij,nj->ni", Kn[:, :3, :3], p_world) + Kn[:, :3, 3]
         return torch.cat([self.q, x], dim=1), K[:, :3, :3]
 
@@ -62,7 +77,7 @@ class EMFitter:
         self.T, self.K = cfg.time_steps, len(cfg.offsets)
         d = data.q.shape[1]
         self.d, self.F = d, d + 3
-        self.T_lm = data.T_lm_world[:, landmark_idx]  # (M, Z', 4, 4)
+        self.T_lm = data.T_lm_world[:, landmark_idx]  # (R, Z', 4, 4)
         self.Z = len(landmark_idx)
         self.floor = torch.tensor([cfg.floor_joint] * d + [cfg.floor_task] * 3, dtype=dtype, device=device)
         self.nu = float(cfg.floor_weight) if cfg.floor_weight is not None else data.N / self.T
@@ -81,7 +96,7 @@ class EMFitter:
 
     # -- pieces of the objective
     def zeta_terms(self, tool, w, A):
-        out = volume_prior(A, self.data.counts) if self.cfg.volume_prior else tool.new_zeros(())
+        out = volume_prior(A, self.data.lm_counts) if self.cfg.volume_prior else tool.new_zeros(())
         if self.cfg.zeta_prior is not None:
             out = out + self.cfg.zeta_prior(tool, w)
         return out

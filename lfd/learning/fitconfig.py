@@ -155,7 +155,7 @@ class FitResult:
     kept_landmarks: tuple[str, ...]
     env_before_pruning: dict
     alignments: tuple[np.ndarray, ...]
-    virtual_det: tuple[float, ...]  # |det A| of K_virt^-1's linear part, per demonstration
+    virtual_det: tuple[float, ...]  # |det A| of K_virt^-1's linear part, per demonstration (its least when tracked)
     effective_demos: tuple[float, ...]  # per step, in the final alignment (lfd.learning.dtw.effective_demos);
     # a warning when the median is under M / 3 (with M >= 4 demonstrations)
     warnings: tuple[str, ...]

@@ -322,9 +322,12 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
 
     with torch.no_grad():
         _, A = data.features(tool, w, fitter.T_lm)
-        det = torch.linalg.det(A).abs().cpu().numpy()
-    if (det < 0.5).any() or (det > 2.0).any():
-        log.note(f"degenerate virtual landmark: |det A| of K_virt^-1 ranges {det.min():.3g}..{det.max():.3g} "
+        det_rows = torch.linalg.det(A).abs()  # (R,) per landmark row
+        det = torch.full((data.M,), math.inf, dtype=det_rows.dtype, device=det_rows.device).scatter_reduce(
+            0, data.lm_demo, det_rows, reduce="amin").cpu().numpy()  # (M,) the least per demonstration
+        lo, hi = float(det_rows.min()), float(det_rows.max())
+    if lo < 0.5 or hi > 2.0:
+        log.note(f"degenerate virtual landmark: |det A| of K_virt^-1 ranges {lo:.3g}..{hi:.3g} "
                  f"(1 for a rigid frame); the mixture shrinks or stretches the task features")
     eff = effective_demos(align, cfg.time_steps)
     note = occupancy_note(eff, len(align))

@@ -38,7 +38,8 @@ def floor_prior(sigma_inv: torch.Tensor, floor: torch.Tensor, nu: float) -> torc
 
 
 def volume_prior(A: torch.Tensor, counts: torch.Tensor) -> torch.Tensor:
-    """``-2 sum_m counts_m log|det A_m|``; ``A (M, 3, 3)``, ``counts (M,)`` observations per demo."""
+    """``-2 sum_r counts_r log|det A_r|``; ``A (R, 3, 3)`` per landmark row (a demonstration, or an
+    observation when landmarks were tracked), ``counts (R,)`` observations per row."""
     return -2.0 * (counts * torch.linalg.slogdet(A)[1]).sum()
 
 

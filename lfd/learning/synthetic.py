@@ -71,8 +71,13 @@ def _ik(kin, q0, q_nom, targets, tool, iters=60, damping=0.02, null_gain=0.3):
 
 def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5, true_landmark=0,
                    tool=(0.03, -0.02, 0.15), fixed_steps=0, rotations=False, seed=0,
-                   task=None, demo_spread=0.1, std_scale=1.0, dt=None) -> tuple[DemoSet, SyntheticTruth]:
+                   task=None, demo_spread=0.1, std_scale=1.0, dt=None,
+                   landmark_motion=0.0) -> tuple[DemoSet, SyntheticTruth]:
     """A ``DemoSet`` and the ``SyntheticTruth`` it was drawn from (see the module docstring).
+
+    ``landmark_motion``: metres the true landmark travels, at constant speed in a random horizontal
+    direction, during each demonstration (a hand moving towards the robot in a handover); the task
+    follows it, and the landmarks are then tracked, ``(S, Z, 4, 4)`` per demonstration.
 
     ``dt``: the sampling interval written into every demonstration; default the ``task``'s
     (``TaskSpec.dt``), 0.1 s without a task, so that a set saved with its task loads again.
@@ -107,7 +112,14 @@ def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5,
         targets = x.copy()
         rel = align >= fixed_steps
         L = lm[true_landmark]
-        targets[rel] = x[rel] @ L[:3, :3].T + L[:3, 3]
+        if landmark_motion:
+            heading = rng.uniform(0, 2 * np.pi)
+            travel = np.linspace(0.0, landmark_motion, len(align))[:, None] * [np.cos(heading), np.sin(heading), 0.0]
+            lm = np.repeat(lm[None], len(align), axis=0)  # (S, Z, 4, 4): tracked
+            lm[:, true_landmark, :3, 3] += travel
+            targets[rel] = x[rel] @ L[:3, :3].T + L[:3, 3] + travel[rel]
+        else:
+            targets[rel] = x[rel] @ L[:3, :3].T + L[:3, 3]
         q_nom = q_nom_steps[align] + demo_spread * rng.normal(size=7) + 0.02 * rng.normal(size=(len(align), 7))
         lms.append(lm)
         aligns.append(align)
