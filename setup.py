@@ -28,6 +28,7 @@ def read_version() -> str:
 CONSOLE_SCRIPTS = [
     "lfd-train = lfd.train_cli:cli",
     "lfd-plan = sim.plan_cli:cli",
+    "lfd-import = lfd.io.import_csv:cli",
 ]
 
 setup(

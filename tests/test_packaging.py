@@ -33,8 +33,9 @@ def test_console_scripts_resolve_to_callables():
         module, func = target.split(":")
         names[name] = getattr(importlib.import_module(module), func)
         assert callable(names[name]), spec
-    assert set(names) == {"lfd-train", "lfd-plan"}
+    assert set(names) == {"lfd-train", "lfd-plan", "lfd-import"}
     assert names["lfd-train"].__module__.startswith("lfd.")  # the library's: no simulator needed
+    assert names["lfd-import"].__module__.startswith("lfd.")
     assert names["lfd-plan"].__module__.startswith("sim.")
 
 

@@ -1,0 +1,131 @@
+"""``lfd-import`` (``python -m lfd.io.import_csv``): recorded CSV demonstrations into a demonstration set.
+
+    lfd-import RECORDINGS --out DIR --task NAME [--rate HZ] [--time-steps T] [--reference LANDMARK]
+               [--robot NAME | --robot-json FILE] [--columns MAPPING.json] [--frame-pose X Y Z QX QY QZ QW]
+               [--max-gap S] [--trim-pauses RAD]
+
+The formats are ``lfd.io.recordings``'s. The set is written into a new folder beside ``--out``
+and checked by loading it (``lfd.learning.demos.load_demos``) before it takes ``--out``'s name,
+so a refused recording leaves nothing half-written. ``--out`` must not exist yet.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from lfd.cli import ArgumentParser, UsageError, run_main
+
+__all__ = ["PROG", "build_parser", "cli", "main"]
+
+PROG = "lfd-import"
+
+
+def build_parser(prog: str = PROG) -> ArgumentParser:
+    p = ArgumentParser(prog=prog, description="Turn recorded demonstrations (joint and landmark CSVs, one folder "
+                                              "or file pair per demonstration) into an lfd demonstration set.")
+    p.add_argument("recordings", type=Path, metavar="RECORDINGS",
+                   help="folder of DEMO/joints.csv + DEMO/landmarks.csv, or DEMO_joints.csv + DEMO_landmarks.csv")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="the demonstration set to write (new folder)")
+    p.add_argument("--task", required=True, metavar="NAME", help="the task's name, written to task.json")
+    p.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="samples per second after resampling")
+    p.add_argument("--time-steps", type=int, default=24, metavar="T", help="the task model's time steps (task.json)")
+    p.add_argument("--reference", default=None, metavar="LANDMARK",
+                   help="the landmark a person would name for the task (the 'manual' baseline; default: the "
+                        "first landmark of the first recording)")
+    robot = p.add_mutually_exclusive_group()
+    robot.add_argument("--robot", default="baxter_left", metavar="NAME",
+                       help="a built-in robot (lfd.robot.robots): baxter_left")
+    robot.add_argument("--robot-json", type=Path, default=None, metavar="FILE",
+                       help="your robot: a JSON RobotSpec (name, urdf, end_link, joint_names)")
+    p.add_argument("--columns", type=Path, default=None, metavar="MAPPING.json",
+                   help='joint CSV columns other than time + URDF joint names: {"time": "t", "joints": '
+                        '{"left_s0": "j0", ...}, "degrees": false} (default: none)')
+    p.add_argument("--frame-pose", type=float, nargs=7, default=None, metavar=("X", "Y", "Z", "QX", "QY", "QZ", "QW"),
+                   help="the landmark CSVs' frame in the robot's base frame (default: they are in the base frame)")
+    p.add_argument("--max-gap", type=float, default=0.5, metavar="S",
+                   help="longest time allowed between two readings, seconds")
+    p.add_argument("--trim-pauses", type=float, default=0.0, metavar="RAD",
+                   help="leave out the start (end) while every joint stays within RAD of where it starts (ends): "
+                        "the pauses before and after the motion (default: 0, keep all)")
+    return p
+
+
+def _robot(args):
+    import json
+
+    from lfd.robot.robots import RobotSpec, robot_from_name
+    try:
+        if args.robot_json is not None:
+            return RobotSpec.from_dict(json.loads(args.robot_json.read_text()))
+        return robot_from_name(args.robot)
+    except (OSError, ValueError) as e:
+        raise UsageError(f"--robot{'-json' if args.robot_json else ''}: {e}") from e
+
+
+def _frame(pose) -> np.ndarray | None:
+    if pose is None:
+        return None
+    from scipy.spatial.transform import Rotation
+    q = np.asarray(pose[3:])
+    if abs(np.linalg.norm(q) - 1) > 1e-3:
+        raise UsageError(f"--frame-pose: the quaternion {q.tolist()} is not unit")
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = Rotation.from_quat(q).as_matrix(), pose[:3]
+    return T
+
+
+def main(argv=None, prog: str = PROG) -> int:
+    """Import the recordings; 0 on success. ``UsageError`` / ``RecordingError`` on bad input."""
+    from lfd.io.recordings import JointColumns, import_recordings
+    from lfd.learning.demos import load_demos, save_demos
+    from lfd.learning.tasks import TaskSpec
+
+    args = build_parser(prog).parse_args(argv)
+    if args.out.exists():
+        raise UsageError(f"--out {args.out}: exists already; choose a new folder")
+    if not args.rate > 0 or args.time_steps < 2:
+        raise UsageError(f"--rate must be positive and --time-steps at least 2, got {args.rate}, {args.time_steps}")
+    robot = _robot(args)
+    columns = JointColumns.load(args.columns) if args.columns else None
+    ds, report = import_recordings(args.recordings, robot, args.rate, columns=columns, T_base_frame=_frame(args.frame_pose),
+                                   max_gap=args.max_gap, trim=args.trim_pauses)
+    reference = args.reference or ds.landmark_names[0]
+    if reference not in ds.landmark_names:
+        raise UsageError(f"--reference {reference}: not among the recorded landmarks {list(ds.landmark_names)}")
+    try:
+        task = TaskSpec(name=args.task, dt=1.0 / args.rate, time_steps=args.time_steps, reference_landmark=reference)
+    except ValueError as e:
+        raise UsageError(f"--task: {e}") from e
+    ds = replace(ds, task=task)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{args.out.name}-", dir=args.out.parent))
+    try:
+        save_demos(tmp, ds)
+        load_demos(tmp)  # every check of the format, before the set takes its name
+        tmp.rename(args.out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    for r in report:
+        trimmed = f", trimmed {r['trimmed_start_s']:g} s + {r['trimmed_end_s']:g} s" \
+            if r["trimmed_start_s"] or r["trimmed_end_s"] else ""
+        print(f"{r['name']}: {r['raw_samples']} rows -> {r['samples']} samples at {args.rate:g} Hz{trimmed}; "
+              f"landmarks {r['landmarks']}")
+    print(f"wrote {len(ds.demos)} demonstrations of {args.task!r} (landmarks {list(ds.landmark_names)}, "
+          f"robot {robot.name}) to {args.out}", file=sys.stdout)
+    return 0
+
+
+def cli() -> None:
+    """The ``lfd-import`` console script."""
+    run_main(main, prog=PROG)
+
+
+if __name__ == "__main__":
+    cli()

@@ -1,0 +1,262 @@
+"""Recorded demonstrations from CSV files: joint recordings and tracked landmarks, resampled.
+
+A recording of one demonstration is a joint CSV and, optionally, a landmark CSV, either in a
+folder of their own (``DEMO/joints.csv``, ``DEMO/landmarks.csv``) or as a pair of files
+(``DEMO_joints.csv``, ``DEMO_landmarks.csv``). Folders and pairs are taken in sorted order.
+
+* **Joints**: a header row, a time column (seconds) and one column per joint of the robot, named
+  as in its URDF: the Baxter SDK's joint recorder writes ``time,left_s0,left_s1,...`` (its other
+  columns, the gripper and the other arm, are ignored). Another layout is described by a
+  ``JointColumns`` mapping (the time column's name, each joint's column, degrees or radians).
+  Angles are unwrapped (a recorder that wraps at ±pi does not make a joint jump by 2 pi).
+* **Landmarks**: a header row and the columns ``time,name,x,y,z,qx,qy,qz,qw``: the pose of the
+  landmark ``name`` at ``time`` in a frame the user names (``T_base_frame``, the robot base by
+  default), metres and a unit quaternion. A landmark read once holds still; one read at several
+  times is tracked and interpolated at the joint samples' times (positions linearly,
+  orientations by slerp), so a tracker running at another rate is aligned by time.
+
+Every demonstration is resampled to one rate (joints linearly) from its first joint sample.
+What a recording must satisfy, each refused with one line naming the file and row
+(``RecordingError``): the columns exist, every value is a number, time increases (joint rows;
+each landmark's rows), no gap between samples is longer than ``max_gap``, quaternions are unit
+(within ``QUAT_TOLERANCE``), every demonstration names the same landmarks, and every landmark
+has a reading within ``max_gap`` of both ends of each demonstration. Pauses at the start and
+end (every joint within ``trim`` rad of where it starts or ends) can be trimmed, and are reported.
+``import_recordings`` returns the ``DemoSet`` and a report; ``lfd.io.import_csv`` writes it.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from lfd.errors import UserInputError
+from lfd.learning.demos import LIMIT_TOLERANCE, Demonstration, DemoSet
+from lfd.learning.tasks import TaskSpec
+from lfd.robot.robots import RobotSpec
+
+__all__ = ["LANDMARK_COLUMNS", "QUAT_TOLERANCE", "JointColumns", "RecordingError", "find_recordings",
+           "import_recordings"]
+
+LANDMARK_COLUMNS = ("time", "name", "x", "y", "z", "qx", "qy", "qz", "qw")
+QUAT_TOLERANCE = 1e-3  # |norm - 1| allowed in a recorded quaternion
+
+
+class RecordingError(UserInputError):
+    """A recording that cannot be imported (the message names the file, the row and the reason)."""
+
+
+@dataclass(frozen=True)
+class JointColumns:
+    """How a joint CSV names its columns: ``time`` the time column (seconds); ``joints`` the
+    column of each of the robot's joints (None: the joints' own URDF names, as the Baxter
+    recorder writes them); ``degrees``: angles in degrees instead of radians."""
+
+    time: str = "time"
+    joints: dict = field(default_factory=dict)
+    degrees: bool = False
+
+    @classmethod
+    def load(cls, path: str | Path) -> JointColumns:
+        """A mapping file: ``{"time": "t", "joints": {"left_s0": "j0", ...}, "degrees": false}``."""
+        try:
+            d = json.loads(Path(path).read_text())
+            if not isinstance(d, dict) or not set(d) <= {"time", "joints", "degrees"}:
+                raise ValueError("expected an object with the keys time, joints, degrees")
+            return cls(time=str(d.get("time", "time")), joints={str(k): str(v) for k, v in d.get("joints", {}).items()},
+                       degrees=bool(d.get("degrees", False)))
+        except (OSError, ValueError, TypeError, AttributeError) as e:
+            raise RecordingError(f"{path}: not a joint-column mapping ({e})") from e
+
+    def column(self, joint: str) -> str:
+        return self.joints.get(joint, joint)
+
+
+def find_recordings(root: str | Path) -> list[tuple[str, Path, Path | None]]:
+    """``(name, joint CSV, landmark CSV or None)`` of every demonstration under ``root``."""
+    root = Path(root)
+    if not root.is_dir():
+        raise RecordingError(f"{root}: no such folder of recordings")
+    found = []
+    for d in sorted(p for p in root.iterdir() if p.is_dir()):
+        if (d / "joints.csv").is_file():
+            lm = d / "landmarks.csv"
+            found.append((d.name, d / "joints.csv", lm if lm.is_file() else None))
+    for f in sorted(root.glob("*_joints.csv")):
+        name = f.name[: -len("_joints.csv")]
+        lm = f.with_name(f"{name}_landmarks.csv")
+        found.append((name, f, lm if lm.is_file() else None))
+    if not found:
+        raise RecordingError(f"{root}: no recordings (DEMO/joints.csv or DEMO_joints.csv)")
+    return found
+
+
+def _read_csv(path: Path) -> tuple[list[str], list[list[str]]]:
+    try:
+        with path.open(newline="") as fh:
+            rows = [r for r in csv.reader(fh) if r and any(c.strip() for c in r)]
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        raise RecordingError(f"{path}: cannot be read as CSV ({e})") from e
+    if len(rows) < 2:
+        raise RecordingError(f"{path}: needs a header row and at least one data row")
+    return [c.strip() for c in rows[0]], rows[1:]
+
+
+def _numbers(path: Path, header: list[str], rows: list[list[str]], columns) -> np.ndarray:
+    """``(rows, len(columns))`` floats of the named columns; a missing column or a value that is
+    not a finite number is refused with its row (1-based, the header is row 1)."""
+    missing = [c for c in columns if c not in header]
+    if missing:
+        raise RecordingError(f"{path}: missing column(s) {missing} (header: {header})")
+    idx = [header.index(c) for c in columns]
+    out = np.empty((len(rows), len(idx)))
+    for i, r in enumerate(rows):
+        for j, k in enumerate(idx):
+            try:
+                out[i, j] = float(r[k])
+            except (ValueError, IndexError):
+                out[i, j] = math.nan
+            if not math.isfinite(out[i, j]):
+                raise RecordingError(f"{path}: row {i + 2}, column {columns[j]!r}: "
+                                     f"{r[k] if k < len(r) else '(missing)'!r} is not a finite number")
+    return out
+
+
+def _check_times(path: Path, t: np.ndarray, max_gap: float, what: str = "") -> None:
+    d = np.diff(t)
+    if (d <= 0).any():
+        i = int(np.flatnonzero(d <= 0)[0])
+        raise RecordingError(f"{path}: {what}time does not increase at row {i + 3} ({t[i + 1]:g} s after {t[i]:g} s)")
+    if (d > max_gap).any():
+        i = int(np.argmax(d))
+        raise RecordingError(f"{path}: {what}a gap of {d[i]:.3g} s between {t[i]:g} s and {t[i + 1]:g} s "
+                             f"(longer than --max-gap {max_gap:g} s)")
+
+
+def _joints(path: Path, robot: RobotSpec, cols: JointColumns, max_gap: float) -> tuple[np.ndarray, np.ndarray]:
+    """Times ``(S,)`` and unwrapped joint angles ``(S, d)`` in radians."""
+    header, rows = _read_csv(path)
+    names = [cols.time] + [cols.column(j) for j in robot.joint_names]
+    a = _numbers(path, header, rows, names)
+    t, q = a[:, 0], a[:, 1:]
+    _check_times(path, t, max_gap)
+    if cols.degrees:
+        q = np.deg2rad(q)
+    return t, np.unwrap(q, axis=0)
+
+
+def _landmark_tracks(path: Path, T_base_frame: np.ndarray, max_gap: float) -> dict:
+    """``{name: (times (K,), T_base_landmark (K, 4, 4))}`` from a landmark CSV."""
+    header, rows = _read_csv(path)
+    if "name" not in header:
+        raise RecordingError(f"{path}: missing column(s) ['name'] (header: {header})")
+    k = header.index("name")
+    a = _numbers(path, header, rows, [c for c in LANDMARK_COLUMNS if c != "name"])
+    names = np.array([r[k].strip() if k < len(r) else "" for r in rows])
+    if (names == "").any():
+        raise RecordingError(f"{path}: row {int(np.flatnonzero(names == '')[0]) + 2}: empty landmark name")
+    norm = np.linalg.norm(a[:, 4:8], axis=1)
+    if (np.abs(norm - 1) > QUAT_TOLERANCE).any():
+        i = int(np.argmax(np.abs(norm - 1)))
+        raise RecordingError(f"{path}: row {i + 2}: quaternion (qx, qy, qz, qw) has norm {norm[i]:.4g}, "
+                             f"not 1 (within {QUAT_TOLERANCE:g})")
+    tracks = {}
+    for name in dict.fromkeys(names.tolist()):  # in order of first appearance
+        sel = np.flatnonzero(names == name)
+        t = a[sel, 0]
+        _check_times(path, t, max_gap, what=f"landmark {name!r}: ")
+        T = np.tile(np.eye(4), (len(sel), 1, 1))
+        T[:, :3, :3] = Rotation.from_quat(a[sel, 4:8] / norm[sel, None]).as_matrix()
+        T[:, :3, 3] = a[sel, 1:4]
+        tracks[name] = (t, T_base_frame @ T)
+    return tracks
+
+
+def _at_times(path: Path, name: str, track, t: np.ndarray, max_gap: float) -> np.ndarray:
+    """A landmark's poses ``(S, 4, 4)`` at the times ``t``: interpolated between its readings,
+    held before the first and after the last (each within ``max_gap`` of the demonstration)."""
+    tt, T = track
+    if len(tt) > 1 and (tt[0] > t[0] + max_gap or tt[-1] < t[-1] - max_gap):
+        raise RecordingError(f"{path}: landmark {name!r} is read from {tt[0]:g} s to {tt[-1]:g} s, not within "
+                             f"--max-gap {max_gap:g} s of the demonstration's {t[0]:g}-{t[-1]:g} s")
+    out = np.tile(np.eye(4), (len(t), 1, 1))
+    if len(tt) == 1:
+        out[:] = T[0]
+        return out
+    tc = np.clip(t, tt[0], tt[-1])
+    out[:, :3, 3] = np.stack([np.interp(tc, tt, T[:, i, 3]) for i in range(3)], axis=1)
+    out[:, :3, :3] = Slerp(tt, Rotation.from_matrix(T[:, :3, :3]))(tc).as_matrix()
+    return out
+
+
+def _limits(robot: RobotSpec) -> tuple[np.ndarray, np.ndarray]:
+    """The robot's joint limits from its URDF (``RecordingError`` when it cannot be loaded)."""
+    from lfd.robot.kinematics import KinematicModel, KinematicsError
+
+    try:
+        kin = KinematicModel.from_spec(robot)
+    except KinematicsError as e:
+        raise RecordingError(f"robot {robot.name!r} cannot be loaded: {e}") from e
+    return kin.lower.cpu().numpy(), kin.upper.cpu().numpy()
+
+
+def _trim(q: np.ndarray, tolerance: float) -> slice:
+    """The samples from the last one at which every joint is still within ``tolerance`` (rad) of
+    where it started to the first at which every joint is within it of where it ends: the
+    pauses before and after the motion are left out (a tolerance, not a speed, so that sensor
+    noise does not count as motion)."""
+    start = np.flatnonzero(np.abs(q - q[0]).max(axis=1) > tolerance)
+    end = np.flatnonzero(np.abs(q - q[-1]).max(axis=1) > tolerance)
+    if not len(start) or not len(end):
+        return slice(0, len(q))
+    return slice(max(0, int(start[0]) - 1), int(end[-1]) + 2)
+
+
+def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: TaskSpec | None = None,
+                      columns: JointColumns | None = None, T_base_frame=None, max_gap: float = 0.5,
+                      trim: float = 0.0) -> tuple[DemoSet, list[dict]]:
+    """Every recording under ``root`` (``find_recordings``) as one ``DemoSet`` sampled at ``rate``
+    Hz, and a report per demonstration (its samples before and after, the seconds trimmed, its
+    landmarks held still or tracked). ``T_base_frame (4, 4)``: the landmark CSVs' frame in the
+    robot's base frame (default: they are in the base frame). ``RecordingError`` on bad input."""
+    if not (math.isfinite(rate) and rate > 0) or not max_gap > 0 or not trim >= 0:
+        raise RecordingError(f"rate and max_gap must be positive and trim >= 0, got {rate}, {max_gap}, {trim}")
+    columns = columns or JointColumns()
+    T_base_frame = np.eye(4) if T_base_frame is None else np.asarray(T_base_frame, dtype=float)
+    lower, upper = _limits(robot)
+    demos, report, names = [], [], None
+    for name, jpath, lpath in find_recordings(root):
+        t_raw, q_raw = _joints(jpath, robot, columns, max_gap)
+        out = (q_raw < lower - LIMIT_TOLERANCE) | (q_raw > upper + LIMIT_TOLERANCE)
+        if out.any():
+            i, j = (int(x) for x in np.argwhere(out)[0])
+            raise RecordingError(f"{jpath}: row {i + 2}: joint {robot.joint_names[j]} = {q_raw[i, j]:.4g} rad is "
+                                 f"outside its URDF limits [{lower[j]:.4g}, {upper[j]:.4g}]")
+        if lpath is None:
+            raise RecordingError(f"{jpath}: no landmark recording beside it ({name}/landmarks.csv or "
+                                 f"{name}_landmarks.csv)")
+        tracks = _landmark_tracks(lpath, T_base_frame, max_gap)
+        if names is None:
+            names = tuple(tracks)
+        elif set(tracks) != set(names):
+            raise RecordingError(f"{lpath}: landmarks {sorted(tracks)} differ from the first recording's "
+                                 f"{sorted(names)}")
+        keep = _trim(q_raw, trim) if trim else slice(0, len(t_raw))
+        t0, t1 = t_raw[keep][0], t_raw[keep][-1]
+        t = t0 + np.arange(int(math.floor((t1 - t0) * rate + 1e-9)) + 1) / rate  # (S,)
+        q = np.stack([np.interp(t, t_raw, q_raw[:, j]) for j in range(q_raw.shape[1])], axis=1)
+        poses = np.stack([_at_times(lpath, n, tracks[n], t, max_gap) for n in names], axis=1)  # (S, Z, 4, 4)
+        still = all(len(tracks[n][0]) == 1 for n in names)
+        demos.append(Demonstration(q=q, dt=1.0 / rate, landmarks=poses[0] if still else poses, name=name))
+        report.append({"name": name, "raw_samples": len(t_raw), "samples": len(t),
+                       "trimmed_start_s": round(float(t0 - t_raw[0]), 3), "trimmed_end_s": round(float(t_raw[-1] - t1), 3),
+                       "landmarks": "held still" if still else "tracked"})
+    assert names is not None  # find_recordings found at least one
+    ds = DemoSet(demos=tuple(demos), joint_names=robot.joint_names, landmark_names=names, robot=robot, task=task)
+    return ds, report
