@@ -148,6 +148,9 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     p.add_argument("--floor-joint", type=float, default=None, metavar="RAD",
                    help="variance floor of the joint features, a standard deviation in radians "
                         "(default: lfd.learning.learn.FitConfig's, 0.001)")
+    p.add_argument("--tool-radius", type=float, default=None, metavar="M",
+                   help="the tool's size: how far from the gripper's origin the learned tool point may lie "
+                        "(default: lfd.learning.learn.FitConfig's, 0.5)")
     p.add_argument("--resume", action="store_true",
                    help="continue from the checkpoint in --out (same options and demonstrations)")
     p.add_argument("--quiet", action="store_true",
@@ -267,7 +270,8 @@ def _fit_config(args, ds, demos_dir: Path):
     kw = {"tool": args.tool, "env": args.env, "seed": args.seed, "device": args.device}
     for key, val in (("restarts", args.restarts), ("covariance", args.covariance), ("init", args.init),
                      ("offsets", tuple(args.offsets) if args.offsets else None),
-                     ("floor_task", args.floor_task), ("floor_joint", args.floor_joint)):
+                     ("floor_task", args.floor_task), ("floor_joint", args.floor_joint),
+                     ("tool_radius", args.tool_radius)):
         if val is not None:
             kw[key] = val
     if args.band is not None:

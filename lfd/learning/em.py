@@ -19,6 +19,8 @@ from lfd.learning.priors import estimate_log_trans, floor_prior, volume_prior
 
 __all__ = ["EM_FAILURES", "EMFitter", "FitData"]
 
+TOOL_BOUND_WEIGHT = 1e4  # per observation and m^2 beyond FitConfig.tool_radius: far steeper than any likelihood term
+
 # what a restart that diverged raises (a non-finite loss, a covariance that is not positive definite)
 EM_FAILURES = (FloatingPointError, torch.linalg.LinAlgError)
 
@@ -97,6 +99,9 @@ class EMFitter:
     # -- pieces of the objective
     def zeta_terms(self, tool, w, A):
         out = volume_prior(A, self.data.lm_counts) if self.cfg.volume_prior else tool.new_zeros(())
+        excess = tool.norm() - self.cfg.tool_radius  # the tool point stays within the tool's size
+        if bool(excess > 0):  # (inside it the objective is the paper's, to the bit)
+            out = out + TOOL_BOUND_WEIGHT * self.data.N * excess ** 2
         if self.cfg.zeta_prior is not None:
             out = out + self.cfg.zeta_prior(tool, w)
         return out

@@ -43,6 +43,10 @@ class FitConfig:
     floor_joint, floor_task : the variance-floor prior's standard deviations (lfd.learning.priors).
     floor_weight : its pseudo-observations ``nu``; None = mean observations per time step.
     volume_prior : add ``-2 log|det A|`` per observation (lfd.learning.priors); zero for aligned frames.
+    tool_radius : metres from the gripper's origin the learned tool point may lie (the tool's
+        size): beyond it a steep penalty holds it, so that a component the demonstrations cannot
+        determine (the gripper never turned about that axis, ``lfd.learning.identify``) stays on
+        the tool instead of drifting off to metres; inside it the objective is the paper's.
     trans_floor : smallest probability of a permitted transition.
     init : how each restart's first alignments are drawn. 'reference' (default): every
         demonstration is warped by DTW of its joint angles onto one reference demonstration
@@ -97,6 +101,7 @@ class FitConfig:
     tool_search: float = 0.2
     tool_grid: int = 5
     band: int | None = 1
+    tool_radius: float = 0.5
     zeta_prior: Callable | None = field(default=None, compare=False)
     eta_prior: Callable | None = field(default=None, compare=False)
 
@@ -136,6 +141,8 @@ class FitConfig:
         if not all(math.isfinite(x) and x > 0 for x in (self.floor_joint, self.floor_task)):
             raise ValueError(f"FitConfig.floor_joint and floor_task must be positive standard deviations, "
                              f"got {self.floor_joint}, {self.floor_task}")
+        if not (math.isfinite(self.tool_radius) and self.tool_radius > 0):
+            raise ValueError(f"FitConfig.tool_radius must be a positive distance in metres, got {self.tool_radius}")
         if not 0 <= self.prune_threshold < 1:
             raise ValueError(f"FitConfig.prune_threshold must be in [0, 1), got {self.prune_threshold}")
         if not 0 < self.trans_floor < 1.0 / len(self.offsets):

@@ -45,6 +45,7 @@ from lfd.learning.checkpoint import CheckpointError, FitProgress, config_record,
 from lfd.learning.dtw import effective_demos, linear_alignment, min_samples, random_alignment, reference_alignments
 from lfd.learning.em import EM_FAILURES, EMFitter, FitData
 from lfd.learning.fitconfig import DTYPES, ENV_MODES, INITS, M_STEPS, TOOL_MODES, FitConfig, FitResult
+from lfd.learning.identify import check_learnable, identifiability_notes
 from lfd.learning.model import TaskModel
 
 __all__ = ["ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitResult", "fit", "initial_guesses"]
@@ -303,12 +304,17 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     demoset = demoset.subsample(cfg.subsample)
     names = tuple(demoset.landmark_names)
     _check_inputs(demoset, cfg)
+    check_learnable(demoset, cfg)
     fixed = _fixed_landmarks(demoset, cfg)
     data = FitData(demoset, kin, dtype, device)
+    unidentified = identifiability_notes(demoset, data.T_world_ee.cpu().numpy(), cfg)
     t_fk = time.perf_counter() - t0
     torch.manual_seed(cfg.seed)
 
     log = _run_restarts(demoset, data, cfg, fixed, callback, dtype, device, on_restart, resume, fingerprint)
+    for text in unidentified:
+        if text not in log.notes:  # a resumed checkpoint's notes may hold it already
+            log.note(text)
     assert log.best is not None
     best_r = log.best[0]
     env_before = {n: float(x) for n, x in zip(names, log.best[1][1].cpu().numpy())}
