@@ -40,7 +40,7 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                         "first landmark of the first recording)")
     robot = p.add_mutually_exclusive_group()
     robot.add_argument("--robot", default="baxter_left", metavar="NAME",
-                       help="a built-in robot (lfd.robot.robots): baxter_left")
+                       help="a built-in robot (lfd.robot.robots): baxter_left or panda")
     robot.add_argument("--robot-json", type=Path, default=None, metavar="FILE",
                        help="your robot: a JSON RobotSpec (name, urdf, end_link, joint_names)")
     p.add_argument("--columns", type=Path, default=None, metavar="MAPPING.json",

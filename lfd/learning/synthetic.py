@@ -18,12 +18,19 @@ import numpy as np
 import torch
 
 from lfd.learning.demos import Demonstration, DemoSet
-from lfd.robot.robots import BAXTER_LEFT
+from lfd.robot.robots import BAXTER_LEFT, PANDA, RobotSpec
 
 __all__ = ["SyntheticTruth", "make_synthetic", "random_rotation"]
 
 Q_START = np.array([0.3, -0.6, -0.3, 1.4, 0.3, 0.8, 0.0])
 Q_END = np.array([-0.1, -0.2, 0.2, 1.2, -0.4, 0.6, 0.9])
+# per built-in robot: the nominal arm postures at the start and the end of a demonstration, and
+# the box (low, high corners, m) in which the landmarks are placed, within the arm's reach
+ARMS = {
+    BAXTER_LEFT.name: (Q_START, Q_END, ((0.55, -0.1, -0.15), (0.95, 0.6, 0.15))),
+    PANDA.name: (np.array([0.3, -0.5, 0.0, -2.2, 0.0, 1.8, 0.8]), np.array([-0.2, -0.1, 0.1, -1.9, 0.1, 1.9, 1.2]),
+                 ((0.35, -0.25, 0.0), (0.6, 0.25, 0.2))),
+}
 
 
 @dataclass(frozen=True)
@@ -72,12 +79,13 @@ def _ik(kin, q0, q_nom, targets, tool, iters=60, damping=0.02, null_gain=0.3):
 def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5, true_landmark=0,
                    tool=(0.03, -0.02, 0.15), fixed_steps=0, rotations=False, seed=0,
                    task=None, demo_spread=0.1, std_scale=1.0, dt=None,
-                   landmark_motion=0.0) -> tuple[DemoSet, SyntheticTruth]:
+                   landmark_motion=0.0, robot: RobotSpec = BAXTER_LEFT) -> tuple[DemoSet, SyntheticTruth]:
     """A ``DemoSet`` and the ``SyntheticTruth`` it was drawn from (see the module docstring).
 
     ``landmark_motion``: metres the true landmark travels, at constant speed in a random horizontal
     direction, during each demonstration (a hand moving towards the robot in a handover); the task
     follows it, and the landmarks are then tracked, ``(S, Z, 4, 4)`` per demonstration.
+    ``robot``: a built-in arm (``ARMS``: its postures and the landmarks' box); ``kin`` must be its model.
 
     ``dt``: the sampling interval written into every demonstration; default the ``task``'s
     (``TaskSpec.dt``), 0.1 s without a task, so that a set saved with its task loads again.
@@ -95,16 +103,18 @@ def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5,
     if fixed_steps:
         means[:fixed_steps] = np.array([0.55, 0.55, 0.25])  # world frame: above a "source"
         stds[:fixed_steps] = [0.01, 0.01, 0.01]
-    q_nom_steps = (1 - s) * Q_START + s * Q_END  # (T, d)
+    if robot.name not in ARMS:
+        raise ValueError(f"no synthetic demonstrations for robot {robot.name!r}; built in: {', '.join(ARMS)}")
+    q_start, q_end, (lo, hi) = ARMS[robot.name]
+    q_nom_steps = (1 - s) * q_start + s * q_end  # (T, d)
     tool = np.asarray(tool, dtype=float)
     lms, aligns, all_targets, all_nom = [], [], [], []
     for m in range(n_demos):
         counts = rng.integers(samples_per_step[0], samples_per_step[1] + 1, size=T)
         align = np.repeat(np.arange(T), counts)
         lm = np.tile(np.eye(4), (Z, 1, 1))
-        lm[:, 0, 3] = rng.uniform(0.55, 0.95, Z)
-        lm[:, 1, 3] = rng.uniform(-0.1, 0.6, Z)
-        lm[:, 2, 3] = rng.uniform(-0.15, 0.15, Z)
+        for i in range(3):
+            lm[:, i, 3] = rng.uniform(lo[i], hi[i], Z)
         if rotations:
             for z in range(Z):
                 lm[z, :3, :3] = random_rotation(rng)
@@ -120,7 +130,8 @@ def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5,
             targets[rel] = x[rel] @ L[:3, :3].T + L[:3, 3] + travel[rel]
         else:
             targets[rel] = x[rel] @ L[:3, :3].T + L[:3, 3]
-        q_nom = q_nom_steps[align] + demo_spread * rng.normal(size=7) + 0.02 * rng.normal(size=(len(align), 7))
+        d = len(robot.joint_names)
+        q_nom = q_nom_steps[align] + demo_spread * rng.normal(size=d) + 0.02 * rng.normal(size=(len(align), d))
         lms.append(lm)
         aligns.append(align)
         all_targets.append(targets)
@@ -135,7 +146,7 @@ def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5,
     names = tuple(["bowl"] + [f"lm{i}" for i in range(1, Z)])
     if true_landmark != 0:
         names = tuple(f"lm{i}" for i in range(Z))
-    ds = DemoSet(demos=tuple(demos), joint_names=BAXTER_LEFT.joint_names, landmark_names=names,
-                 robot=BAXTER_LEFT, task=task)
+    ds = DemoSet(demos=tuple(demos), joint_names=robot.joint_names, landmark_names=names,
+                 robot=robot, task=task)
     return ds, SyntheticTruth(tool=tool, true_landmark=true_landmark, means=means, stds=stds,
                               alignments=tuple(aligns), fixed_steps=fixed_steps)

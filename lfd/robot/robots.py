@@ -14,7 +14,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["BAXTER_LEFT", "RobotSpec", "example_robot_data_share", "resolve_urdf", "robot_from_name"]
+__all__ = ["BAXTER_LEFT", "PANDA", "RobotSpec", "example_robot_data_share", "resolve_urdf", "robot_from_name"]
 
 BAXTER_LEFT_JOINTS = ("left_s0", "left_s1", "left_e0", "left_e1", "left_w0", "left_w1", "left_w2")
 
@@ -52,7 +52,14 @@ BAXTER_LEFT = RobotSpec(
     joint_names=BAXTER_LEFT_JOINTS,
 )
 
-_ROBOTS = {BAXTER_LEFT.name: BAXTER_LEFT}
+PANDA = RobotSpec(  # Franka Emika Panda, its hand the end link (the fingers are not controlled)
+    name="panda",
+    urdf="example-robot-data:robots/panda_description/urdf/panda.urdf",
+    end_link="panda_hand",
+    joint_names=tuple(f"panda_joint{i}" for i in range(1, 8)),
+)
+
+_ROBOTS = {r.name: r for r in (BAXTER_LEFT, PANDA)}
 
 
 def robot_from_name(name: str) -> RobotSpec:
