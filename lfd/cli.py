@@ -26,6 +26,8 @@ __all__ = [
     "ArgumentParser",
     "DefaultsHelpFormatter",
     "UsageError",
+    "check_device",
+    "check_device_available",
     "error_line",
     "run_main",
     "writable_dir",
@@ -136,3 +138,29 @@ def _stdout_to_devnull() -> None:
         os.close(devnull)
     except (OSError, ValueError, AttributeError):  # no real stdout (embedded, captured): nothing to flush
         pass
+
+
+def check_device(text: str) -> str:
+    """``text`` if it names a torch device (``cpu``, ``cuda``, ``cuda:1``, ``mps``, ...);
+    ``UsageError`` saying why otherwise. Whether this machine has it is checked before the fit."""
+    import torch
+    try:
+        torch.device(text)
+    except (RuntimeError, ValueError, TypeError) as e:
+        why = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise UsageError(f"--device {text!r} is not a torch device string, e.g. cpu, cuda, cuda:1, mps "
+                         f"(torch.device: {why})") from None
+    return text
+
+
+def check_device_available(text: str) -> None:
+    """``UsageError`` when this machine cannot put a tensor on the device ``text``."""
+    import torch
+    dev = torch.device(text)
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise UsageError(f"--device {text}: torch.cuda.is_available() is False on this machine")
+    try:
+        torch.zeros(1, device=dev) + 1
+    except (RuntimeError, AssertionError, ValueError) as e:
+        why = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise UsageError(f"--device {text}: this machine's torch cannot use it ({why})") from None

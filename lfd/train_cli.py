@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
+from lfd.cli import ArgumentParser, UsageError, check_device, check_device_available, run_main, writable_dir
 from lfd.learning.tasks import TASKS
 from lfd.train_log import Logger
 
@@ -45,7 +45,6 @@ __all__ = [
     "PROG",
     "TOOL_CHOICES",
     "build_parser",
-    "check_device",
     "cli",
     "default_demos",
     "default_out",
@@ -72,32 +71,6 @@ def default_out(task: str) -> Path:
 def default_demos(task: str) -> Path:
     """``--demos``' default: ``./runs/demos/<task>`` in the current working directory."""
     return Path("runs") / "demos" / task
-
-
-def check_device(text: str) -> str:
-    """``text`` if it names a torch device (``cpu``, ``cuda``, ``cuda:1``, ``mps``, ...);
-    ``UsageError`` saying why otherwise. Whether this machine has it is checked before the fit."""
-    import torch
-    try:
-        torch.device(text)
-    except (RuntimeError, ValueError, TypeError) as e:
-        why = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise UsageError(f"--device {text!r} is not a torch device string, e.g. cpu, cuda, cuda:1, mps "
-                         f"(torch.device: {why})") from None
-    return text
-
-
-def _check_device_available(text: str) -> None:
-    """``UsageError`` when this machine cannot put a tensor on the device ``text``."""
-    import torch
-    dev = torch.device(text)
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise UsageError(f"--device {text}: torch.cuda.is_available() is False on this machine")
-    try:
-        torch.zeros(1, device=dev) + 1
-    except (RuntimeError, AssertionError, ValueError) as e:
-        why = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise UsageError(f"--device {text}: this machine's torch cannot use it ({why})") from None
 
 
 def build_parser(prog: str = PROG) -> ArgumentParser:
@@ -325,7 +298,7 @@ def _demo_set(args):
     demos_dir = args.demos or default_demos(args.task)
     if args.demos is None:
         ensure_demos(args.task, demos_dir, args.seed)
-    _check_device_available(args.device)
+    check_device_available(args.device)
     ds = load_demos(demos_dir, time_steps=args.time_steps)
     if ds.task is not None and ds.task.name != args.task:
         raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")

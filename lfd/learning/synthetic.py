@@ -76,6 +76,33 @@ def _ik(kin, q0, q_nom, targets, tool, iters=60, damping=0.02, null_gain=0.3):
     return q, err
 
 
+def _landmarks_and_targets(rng, align, Z, box, rotations, means, stds, fixed_steps, true_landmark,
+                           landmark_motion):
+    """One demonstration's landmarks (``(Z, 4, 4)``, or tracked ``(S, Z, 4, 4)`` with
+    ``landmark_motion``) placed in ``box``, and its task-point targets ``(S, 3)`` in the world:
+    the per-step means plus noise, relative to the true landmark after ``fixed_steps``."""
+    lo, hi = box
+    lm = np.tile(np.eye(4), (Z, 1, 1))
+    for i in range(3):
+        lm[:, i, 3] = rng.uniform(lo[i], hi[i], Z)
+    if rotations:
+        for z in range(Z):
+            lm[z, :3, :3] = random_rotation(rng)
+    x = means[align] + stds[align] * rng.normal(size=(len(align), 3))  # (S, 3)
+    targets = x.copy()
+    rel = align >= fixed_steps
+    L = lm[true_landmark]
+    if landmark_motion:
+        heading = rng.uniform(0, 2 * np.pi)
+        travel = np.linspace(0.0, landmark_motion, len(align))[:, None] * [np.cos(heading), np.sin(heading), 0.0]
+        lm = np.repeat(lm[None], len(align), axis=0)  # (S, Z, 4, 4): tracked
+        lm[:, true_landmark, :3, 3] += travel
+        targets[rel] = x[rel] @ L[:3, :3].T + L[:3, 3] + travel[rel]
+    else:
+        targets[rel] = x[rel] @ L[:3, :3].T + L[:3, 3]
+    return lm, targets
+
+
 def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5, true_landmark=0,
                    tool=(0.03, -0.02, 0.15), fixed_steps=0, rotations=False, seed=0,
                    task=None, demo_spread=0.1, std_scale=1.0, dt=None,
@@ -112,24 +139,8 @@ def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5,
     for m in range(n_demos):
         counts = rng.integers(samples_per_step[0], samples_per_step[1] + 1, size=T)
         align = np.repeat(np.arange(T), counts)
-        lm = np.tile(np.eye(4), (Z, 1, 1))
-        for i in range(3):
-            lm[:, i, 3] = rng.uniform(lo[i], hi[i], Z)
-        if rotations:
-            for z in range(Z):
-                lm[z, :3, :3] = random_rotation(rng)
-        x = means[align] + stds[align] * rng.normal(size=(len(align), 3))  # (S, 3)
-        targets = x.copy()
-        rel = align >= fixed_steps
-        L = lm[true_landmark]
-        if landmark_motion:
-            heading = rng.uniform(0, 2 * np.pi)
-            travel = np.linspace(0.0, landmark_motion, len(align))[:, None] * [np.cos(heading), np.sin(heading), 0.0]
-            lm = np.repeat(lm[None], len(align), axis=0)  # (S, Z, 4, 4): tracked
-            lm[:, true_landmark, :3, 3] += travel
-            targets[rel] = x[rel] @ L[:3, :3].T + L[:3, 3] + travel[rel]
-        else:
-            targets[rel] = x[rel] @ L[:3, :3].T + L[:3, 3]
+        lm, targets = _landmarks_and_targets(rng, align, Z, (lo, hi), rotations, means, stds, fixed_steps,
+                                             true_landmark, landmark_motion)
         d = len(robot.joint_names)
         q_nom = q_nom_steps[align] + demo_spread * rng.normal(size=d) + 0.02 * rng.normal(size=(len(align), d))
         lms.append(lm)
