@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 import torch
 
-from lfd.robot.kinematics import KinematicModel
 from lfd.learning.em import EMFitter, FitData
+from lfd.learning.fitconfig import SolverSettings
 from lfd.learning.learn import FitConfig, fit, initial_guesses
 from lfd.learning.model import step_nll_tensor
 from lfd.learning.synthetic import make_synthetic
 from lfd.learning.tasks import POWDER
+from lfd.robot.kinematics import KinematicModel
 
 T_STEPS = 8
 
@@ -43,8 +44,8 @@ def test_config_options_are_validated():
         FitConfig(init="dtw")
     with pytest.raises(ValueError, match="FitConfig.band"):
         FitConfig(band=-1)
-    with pytest.raises(ValueError, match="FitConfig.tool_search"):
-        FitConfig(tool_search=-0.1)
+    with pytest.raises(ValueError, match="SolverSettings.tool_search"):
+        FitConfig(solver=SolverSettings(tool_search=-0.1))
 
 
 @pytest.mark.parametrize("band", [0, 1, 3])
@@ -52,7 +53,7 @@ def test_band_keeps_the_e_step_near_the_start(synth, kin, band):
     """With ``band`` every EM alignment stays within that many steps of the restart's start
     (here the reference alignment), and the loss still does not increase."""
     ds, _ = synth
-    cfg = FitConfig(time_steps=T_STEPS, band=band, max_em_iters=6)
+    cfg = FitConfig(time_steps=T_STEPS, band=band, solver=SolverSettings(max_em_iters=6))
     data, fitter = _fitter(ds, kin, cfg)
     align0, tool0, w0 = next(initial_guesses(0, data.lengths, T_STEPS, len(ds.landmark_names), cfg,
                                              series=[d.q for d in ds.demos]))
@@ -66,7 +67,7 @@ def test_linear_init_with_band_0_keeps_the_uniform_warp(synth, kin):
     """init='linear' starts every restart from the uniform time warp; with band 0 the fit's
     alignment is that warp, every step rests on every demonstration (effective_demos = M up to
     the uneven split of S_m into T parts), and the fit still recovers the tool point."""
-    from lfd.learning.dtw import effective_demos, linear_alignment
+    from lfd.learning.dtw import linear_alignment
 
     ds, truth = synth
     cfg = FitConfig(time_steps=T_STEPS, init="linear", band=0, restarts=2, seed=0)
@@ -210,7 +211,7 @@ def test_non_finite_restart_is_dropped(synth, kin):
         return tool.sum() * (math.nan if calls["n"] < 2 else 0.0)
 
     with pytest.warns(RuntimeWarning, match="restart 0 dropped"):
-        res = fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=2, zeta_prior=prior, tool_search=0.0))
+        res = fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=2, zeta_prior=prior, solver=SolverSettings(tool_search=0.0)))
     assert math.isnan(res.restart_losses[0]) and math.isfinite(res.final_loss)
     assert res.best_restart == 1 and any("restart 0 dropped" in w for w in res.warnings)
     with pytest.raises(ValueError, match="every one of the 1 restarts failed"):
@@ -221,7 +222,7 @@ def test_tool_search_starts_lbfgs_from_the_best_grid_point(synth, kin):
     """The start is the grid point (or the current guess) of least profiled loss, nearer the
     truth than a far-off guess; tool_search=0 keeps the guess."""
     ds, truth = synth
-    cfg = FitConfig(time_steps=T_STEPS, tool_search=0.2, tool_grid=3)
+    cfg = FitConfig(time_steps=T_STEPS, solver=SolverSettings(tool_search=0.2, tool_grid=3))
     data, fitter = _fitter(ds, kin, cfg)
     t_idx = torch.as_tensor(np.concatenate(truth.alignments))
     w = torch.zeros(5, dtype=torch.float64)
@@ -234,7 +235,7 @@ def test_tool_search_starts_lbfgs_from_the_best_grid_point(synth, kin):
     assert torch.equal(start, cands[int(losses.argmin())])
     assert float(fitter.profiled(start, w, t_idx)) < float(fitter.profiled(far, w, t_idx))
     assert np.linalg.norm(start.numpy() - truth.tool) < np.linalg.norm(far.numpy() - truth.tool)
-    off = FitConfig(time_steps=T_STEPS, tool_search=0.0)
+    off = FitConfig(time_steps=T_STEPS, solver=SolverSettings(tool_search=0.0))
     assert torch.equal(_fitter(ds, kin, off)[1].search_tool(far, w, t_idx), far)
 
 

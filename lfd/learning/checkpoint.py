@@ -119,7 +119,9 @@ def config_record(cfg) -> dict:
     out = {}
     for f in dataclasses.fields(cfg):
         v = getattr(cfg, f.name)
-        if callable(v):
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            v = dataclasses.asdict(v)  # FitConfig.solver
+        elif callable(v):
             v = getattr(v, "__qualname__", type(v).__name__)
         elif isinstance(v, tuple):
             v = list(v)

@@ -155,19 +155,19 @@ class EMFitter:
 
     # -- steps
     def _lbfgs(self, params, closure, max_iter):
-        opt = torch.optim.LBFGS(params, lr=1.0, max_iter=max_iter, history_size=self.cfg.lbfgs_history,
-                                tolerance_grad=self.cfg.lbfgs_tol_grad, tolerance_change=1e-12,
+        opt = torch.optim.LBFGS(params, lr=1.0, max_iter=max_iter, history_size=self.cfg.solver.lbfgs_history,
+                                tolerance_grad=self.cfg.solver.lbfgs_tol_grad, tolerance_change=1e-12,
                                 line_search_fn="strong_wolfe")
         opt.step(closure)
 
     def search_tool(self, tool, w, t_idx):
         """The best start for the tool point's LBFGS: ``tool`` or a point of a ``g^3`` grid
-        spanning ``+-cfg.tool_search`` m per axis (``g = cfg.tool_grid``), by the profiled loss.
+        spanning ``+-cfg.solver.tool_search`` m per axis (``g = cfg.solver.tool_grid``), by the profiled loss.
 
         The profiled loss is not convex in the tool point (on the pour set, fits from different
         starts ended 12 cm apart), so the local LBFGS starts from the grid's best point instead
         of from the restart's random guess alone; 126 loss evaluations, no gradients."""
-        h, g = float(self.cfg.tool_search), int(self.cfg.tool_grid)
+        h, g = float(self.cfg.solver.tool_search), int(self.cfg.solver.tool_grid)
         if h <= 0 or g < 1:
             return tool
         axis = torch.linspace(-h, h, g, dtype=self.dtype, device=self.device) if g > 1 else tool.new_zeros(1)
@@ -197,11 +197,11 @@ class EMFitter:
             return loss
 
         if params:
-            self._lbfgs(params, closure, self.cfg.lbfgs_max_iter)
+            self._lbfgs(params, closure, self.cfg.solver.lbfgs_max_iter)
         tool, w = tool_p.detach(), (w + self.B @ u).detach()
         w = w - (w.sum() - 1) / self.Z
         mu, sigma_inv = self.eta_from(tool, w, t_idx)
-        if self.cfg.m_step == "joint" or self.cfg.eta_prior is not None:
+        if self.cfg.solver.m_step == "joint" or self.cfg.eta_prior is not None:
             tool, w, mu, sigma_inv = self.joint_polish(tool, w, mu, sigma_inv, t_idx, learn_tool, learn_env)
         return tool, w, mu, sigma_inv
 
@@ -225,7 +225,7 @@ class EMFitter:
             loss.backward()
             return loss
 
-        self._lbfgs(params, closure, self.cfg.joint_max_iter)
+        self._lbfgs(params, closure, self.cfg.solver.joint_max_iter)
         w = (w + self.B @ u).detach()
         return tool_p.detach(), w - (w.sum() - 1) / self.Z, mu_p.detach(), build().detach()
 
@@ -258,7 +258,7 @@ class EMFitter:
         """Alternate M and E steps from an initial alignment; returns the state and loss history."""
         history, state = [], None
         band = self.band_mask(align) if self.cfg.band is not None else None
-        for it in range(self.cfg.max_em_iters):
+        for it in range(self.cfg.solver.max_em_iters):
             t_idx = torch.as_tensor(np.concatenate(align), device=self.device)
             log_trans = estimate_log_trans(align, self.T, self.cfg.offsets, self.cfg.trans_floor,
                                            self.dtype, self.device)
@@ -275,7 +275,7 @@ class EMFitter:
                 on_iter(it, loss, state)
             same = all(np.array_equal(a, b) for a, b in zip(align, new_align))
             align = new_align
-            if same or (len(history) > 1 and abs(history[-2] - history[-1]) < self.cfg.em_tol):
+            if same or (len(history) > 1 and abs(history[-2] - history[-1]) < self.cfg.solver.em_tol):
                 break
         return state, history
 

@@ -15,13 +15,59 @@ import torch
 from lfd.learning.model import COVARIANCES, OFFSETS, TaskModel
 from lfd.learning.tasks import check_stride, check_whole
 
-__all__ = ["DTYPES", "ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitResult"]
+__all__ = ["DTYPES", "ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitResult", "SolverSettings"]
 
 TOOL_MODES = ("learn", "gripper", "tip")
 ENV_MODES = ("learn", "bowl")
 M_STEPS = ("profile", "joint")
 INITS = ("reference", "random", "linear")
 DTYPES = {"float64": torch.float64, "float32": torch.float32}
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """How ``fit`` optimizes, not what it fits (``FitConfig.solver``); the defaults are the ones
+    every result in docs/ was made with.
+
+    max_em_iters, em_tol : EM stops after this many iterations, or when the per-observation loss
+        changes less than ``em_tol`` (or the alignments repeat).
+    lbfgs_max_iter, lbfgs_history, lbfgs_tol_grad : each M-step's LBFGS (``torch.optim.LBFGS``,
+        strong Wolfe line search).
+    m_step : 'profile' (default: LBFGS over zeta with eta in closed form) or 'joint' (then LBFGS
+        over zeta and eta together, ``joint_max_iter`` iterations; forced by an ``eta_prior``).
+    tool_init_std : spread (m) of the restarts' random tool-point starts (the first starts at 0).
+    tool_search, tool_grid : before each restart's first M-step the tool point's start is the
+        best of the current guess and a ``tool_grid^3`` grid spanning ``+-tool_search`` m per
+        axis, by the profiled loss (0 disables); LBFGS is local and the loss is not convex in it.
+    num_threads : torch CPU threads during the fit (restored afterwards); the tensors are
+        small, so one thread is fastest and immune to oversubscription; None leaves it alone.
+    """
+
+    max_em_iters: int = 25
+    em_tol: float = 1e-5
+    lbfgs_max_iter: int = 50
+    lbfgs_history: int = 20
+    lbfgs_tol_grad: float = 1e-7
+    m_step: str = "profile"
+    joint_max_iter: int = 200
+    tool_init_std: float = 0.15
+    tool_search: float = 0.2
+    tool_grid: int = 5
+    num_threads: int | None = 1
+
+    def __post_init__(self):
+        if self.m_step not in M_STEPS:
+            raise ValueError(f"SolverSettings.m_step must be one of {', '.join(M_STEPS)}; got {self.m_step!r}")
+        for name in ("max_em_iters", "lbfgs_max_iter", "lbfgs_history", "joint_max_iter"):
+            check_whole(getattr(self, name), f"SolverSettings.{name}", 1)
+        if not (self.em_tol >= 0 and self.lbfgs_tol_grad >= 0 and self.tool_init_std >= 0):
+            raise ValueError("SolverSettings.em_tol, lbfgs_tol_grad and tool_init_std must be >= 0, got "
+                             f"{self.em_tol}, {self.lbfgs_tol_grad}, {self.tool_init_std}")
+        if not self.tool_search >= 0 or int(self.tool_grid) < 1:
+            raise ValueError(f"SolverSettings.tool_search must be >= 0 and tool_grid >= 1, got "
+                             f"{self.tool_search}, {self.tool_grid}")
+        if self.num_threads is not None:
+            check_whole(self.num_threads, "SolverSettings.num_threads", 1)
 
 
 @dataclass(frozen=True)
@@ -63,28 +109,17 @@ class FitConfig:
         unconstrained DTW drifts to alignments of higher likelihood that squeeze one
         demonstration's whole pouring phase onto a single broad step; with band 1 every step
         of the 50 Hz pour set keeps one phase (see README, "Learning").
-    tool_search, tool_grid : before each restart's first M-step the tool point's start is the
-        best of the current guess and a ``tool_grid^3`` grid spanning ``+-tool_search`` m per
-        axis, by the profiled loss (0 disables); LBFGS is local and the loss is not convex in it.
-    em_tol : stop when the per-observation loss changes less (or alignments repeat).
-    num_threads : torch CPU threads during the fit (restored afterwards); the tensors are
-        small, so one thread is fastest and immune to oversubscription; None leaves it alone.
+    solver : how the fit optimizes (``SolverSettings``): iteration limits and tolerances, the
+        M-step's form, the tool point's starting search, CPU threads. Not what it fits.
     """
 
     time_steps: int = 24
     subsample: int = 1
     offsets: tuple[int, ...] = OFFSETS
     restarts: int = 4
-    max_em_iters: int = 25
-    em_tol: float = 1e-5
-    lbfgs_max_iter: int = 50
-    lbfgs_history: int = 20
-    lbfgs_tol_grad: float = 1e-7
-    joint_max_iter: int = 200
     tool: str = "learn"
     env: str = "learn"
     covariance: str = "block"
-    m_step: str = "profile"
     prune_threshold: float = 0.05
     seed: int = 0
     device: str = "cpu"
@@ -95,19 +130,16 @@ class FitConfig:
     floor_weight: float | None = None
     volume_prior: bool = True
     trans_floor: float = 0.01
-    num_threads: int | None = 1
-    tool_init_std: float = 0.15
     init: str = "reference"
-    tool_search: float = 0.2
-    tool_grid: int = 5
     band: int | None = 1
     tool_radius: float = 0.5
+    solver: SolverSettings = field(default_factory=SolverSettings)
     zeta_prior: Callable | None = field(default=None, compare=False)
     eta_prior: Callable | None = field(default=None, compare=False)
 
     def __post_init__(self):
         for name, allowed in (("tool", TOOL_MODES), ("env", ENV_MODES), ("covariance", COVARIANCES),
-                              ("m_step", M_STEPS), ("init", INITS), ("dtype", tuple(DTYPES))):
+                              ("init", INITS), ("dtype", tuple(DTYPES))):
             value = getattr(self, name)
             if value not in allowed:
                 raise ValueError(f"FitConfig.{name} must be one of {', '.join(allowed)}; got {value!r}")
@@ -118,9 +150,8 @@ class FitConfig:
                              f"got {self.device!r}") from e
         if int(self.time_steps) < 2:
             raise ValueError(f"FitConfig.time_steps must be at least 2, got {self.time_steps}")
-        if not self.tool_search >= 0 or int(self.tool_grid) < 1:
-            raise ValueError(f"FitConfig.tool_search must be >= 0 and tool_grid >= 1, got "
-                             f"{self.tool_search}, {self.tool_grid}")
+        if not isinstance(self.solver, SolverSettings):
+            raise TypeError(f"FitConfig.solver must be a SolverSettings, got {type(self.solver).__name__}")
         if self.band is not None:  # wider than the model would constrain nothing: that is None
             object.__setattr__(self, "band", check_whole(self.band, "FitConfig.band", 0))
             if self.band > int(self.time_steps):

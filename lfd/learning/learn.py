@@ -8,7 +8,7 @@ M-step. With alignments fixed, zeta and eta are estimated together. For the defa
 the eta-optimum for a given zeta is closed-form (per-step mean, ``Sigma_t = (S_t + nu Psi) /
 (s n_t)``), so the M-step minimizes the *profiled* objective over zeta with LBFGS (variable
 projection: the same joint minimum, in 3 + Z - 1 unknowns instead of ~1,600) and then sets eta
-in closed form. ``m_step='joint'`` (forced when an ``eta_prior`` is given) continues with LBFGS
+in closed form. ``SolverSettings(m_step='joint')`` (forced when an ``eta_prior`` is given) continues with LBFGS
 over zeta and eta together from there.
 
 env weights are ``w = w_ref + B u`` with ``B (Z, Z-1)`` an orthonormal basis of ``{sum = 0}``
@@ -84,7 +84,7 @@ def initial_guesses(seed: int, lengths, time_steps: int, n_landmarks: int, cfg: 
         if fixed_tool is not None:
             tool0 = np.asarray(fixed_tool, dtype=float)
         else:
-            tool0 = np.zeros(3) if r == 0 else rng.normal(0.0, cfg.tool_init_std, 3)
+            tool0 = np.zeros(3) if r == 0 else rng.normal(0.0, cfg.solver.tool_init_std, 3)
         w0 = fixed_env if fixed_env is not None else (np.full(Z, 1.0 / Z) if r == 0 else rng.dirichlet(np.ones(Z)))
         yield align, tool0, w0
 
@@ -125,8 +125,8 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
         if why:
             raise CheckpointError(f"{where}: cannot resume, the checkpoint was {why}")
     threads = torch.get_num_threads()
-    if cfg.num_threads is not None:
-        torch.set_num_threads(int(cfg.num_threads))
+    if cfg.solver.num_threads is not None:
+        torch.set_num_threads(int(cfg.solver.num_threads))
     try:
         return _fit(demoset, kin, cfg, callback, dtype, device, on_restart, resume)
     finally:
@@ -347,7 +347,7 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
                       options={"tool": cfg.tool, "env": cfg.env, "floor_joint": cfg.floor_joint,
                                "floor_task": cfg.floor_task, "floor_weight": fitter.nu,
                                "volume_prior": cfg.volume_prior, "trans_floor": cfg.trans_floor,
-                               "m_step": cfg.m_step, "seed": cfg.seed, "subsample": cfg.subsample})
+                               "m_step": cfg.solver.m_step, "seed": cfg.seed, "subsample": cfg.subsample})
     total = time.perf_counter() - t0
     return FitResult(model=model, loss_history=tuple(log.histories), em_iterations=tuple(log.iters),
                      final_loss=float(final_loss), restart_losses=tuple(log.losses), best_restart=best_r,
