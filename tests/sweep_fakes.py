@@ -48,3 +48,16 @@ def flaky(marker_dir: str, key: str, fail_times: int, how: str = "raise") -> str
             os._exit(3)  # as the kernel's OOM killer would end it: no exception, no cleanup
         raise RuntimeError(f"{key} failed on purpose\nsecond line")
     return key
+
+
+def fake_train(calls: list):
+    """A stand-in for ``lfd.train_cli.main`` that records its argv in ``calls`` and writes the two
+    files ``ensure_model`` checks for into ``--out``."""
+    def train(argv):
+        calls.append(argv)
+        out = Path(argv[argv.index("--out") + 1])
+        out.mkdir(parents=True)
+        (out / "model.pt").write_bytes(b"")
+        (out / "config.json").write_text("{}")
+        return 0
+    return train

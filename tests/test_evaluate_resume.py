@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import sim.evaluate as ev
+import sweep_fakes
 import sim.report as report
 from sim.scenarios import draw_scenarios
 
@@ -264,16 +265,7 @@ def test_missing_model_is_trained_with_the_learning_seed_not_the_scenario_seed(t
     gets train.py's learning seed (0), whatever ``--seed`` draws the scenarios."""
     models = tmp_path / "models"
     commands = []
-
-    def fake_train(argv):  # lfd.train_cli.main, called in-process
-        commands.append(argv)
-        out = Path(argv[argv.index("--out") + 1])
-        out.mkdir(parents=True)
-        (out / "model.pt").write_bytes(b"")
-        (out / "config.json").write_text("{}")
-        return 0
-
-    monkeypatch.setattr(ev, "train_main", fake_train)
+    monkeypatch.setattr(ev, "train_main", sweep_fakes.fake_train(commands))  # lfd.train_cli.main, in-process
     monkeypatch.setattr(ev, "run_one", FakeRunOne())
     payload = ev.evaluate(replace(_settings(), seeds=(7,)), tmp_path / "eval", models)
     assert len(commands) == 2  # learn-learn and tip-bowl, each once

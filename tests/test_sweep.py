@@ -78,16 +78,7 @@ def test_grid_cells_spread_and_table(tmp_path, models, fakes, monkeypatch):
     """Two scenario sets x two demonstration draws: draw 2's models are trained (on demand, on
     demonstrations drawn with seed 2), every cell has its line and the table shows mean ± sd."""
     trained, drawn = [], []
-
-    def fake_train(argv):
-        trained.append(argv)
-        out = Path(argv[argv.index("--out") + 1])
-        out.mkdir(parents=True)
-        (out / "model.pt").write_bytes(b"")
-        (out / "config.json").write_text("{}")
-        return 0
-
-    monkeypatch.setattr(ev, "train_main", fake_train)
+    monkeypatch.setattr(ev, "train_main", sweep_fakes.fake_train(trained))
     monkeypatch.setattr(ev, "ensure_demos", lambda task, folder, seed: drawn.append((task, Path(folder), seed)))
     monkeypatch.chdir(tmp_path)
     payload = ev.evaluate(_settings(demo_seeds=(0, 2)), tmp_path / "eval", models)
