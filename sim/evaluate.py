@@ -38,7 +38,7 @@ from sim.latency import parse_latency
 from sim.report import format_table, spread, strict_json, summarize
 from sim.runner import EXEC_PACE, init_worker, model_files, run_one, run_one_shipped
 from sim.scenarios import MAX_BASE_SEED, draw_scenarios
-from sim.sweep import EXECUTORS, Job, make_executor, run_jobs
+from sim.sweep import EXECUTORS, Job, make_executor, require_ray, run_jobs
 
 __all__ = ["VARIANTS", "EvalSettings", "TrainingFailed", "Variant", "evaluate", "format_table", "run_one"]
 
@@ -181,8 +181,9 @@ def save_path(out_dir: Path, row: dict, path) -> str:
     return rel.as_posix()
 
 
-def _read_log(log: Path, latency: str) -> tuple[dict, dict, int]:
-    """The runs logged in ``log`` that count for an evaluation in latency mode ``latency``:
+def _read_log(log: Path, latency: str, run_settings: dict) -> tuple[dict, dict, int]:
+    """The runs logged in ``log`` that count for an evaluation in latency mode ``latency`` with
+    ``run_settings`` (task, roadmap size, models folder; rows logged before they were recorded count):
     ``(done, crashed, lines)``, each keyed by ``(variant, demo_seed, scenario)``: finished runs,
     runs that failed twice (run again), and how many readable lines the log holds."""
     done: dict = {}
@@ -200,7 +201,7 @@ def _read_log(log: Path, latency: str) -> tuple[dict, dict, int]:
         # frozen world ("none"); with a dwell other than the paper's interval (an option since
         # removed), with other edge costs; paced otherwise
         if r.get("latency", "none") != latency or r.get("dwell", "interval") != "interval" \
-                or r.get("pace") != EXEC_PACE:
+                or r.get("pace") != EXEC_PACE or r.get("settings", run_settings) != run_settings:
             continue
         if "error" in r:
             if key not in done:
@@ -244,61 +245,63 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
 
     ``progress``: a tqdm-like class for the bar; ``resume``: continue the sweep logged in
     ``out_dir/runs.jsonl`` (without it, a folder that holds logged runs is refused: its runs
-    would be mixed with this sweep's)."""
+    would be mixed with this sweep's). Logged runs made for another task, roadmap size or
+    models folder are run again, not counted."""
     by_name = {v.name: v for v in VARIANTS}
     variants = [by_name[n] for n in settings.variants]
     log = out_dir / "runs.jsonl"
-    done, crashed, lines = _read_log(log, settings.latency)
+    run_settings = {"task": settings.task, "roadmap_size": settings.roadmap_size, "models": str(models)}
+    done, crashed, lines = _read_log(log, settings.latency, run_settings)
     if lines and not resume:
         raise UsageError(f"{out_dir} already holds {lines} logged run(s): pass --resume to continue that "
                          "evaluation, or choose another --out")
+    if settings.executor == "ray":
+        require_ray()  # before hours of training, not after
     out_dir.mkdir(parents=True, exist_ok=True)
     learn_s = {}
     for k in settings.demo_seeds:
         for v in variants:
-            md = ensure_model(settings.task, models, demos, v, demo_seed=k)
-            summary = md / "summary.json"
+            summary = ensure_model(settings.task, models, demos, v, demo_seed=k) / "summary.json"
             learn_s[v.name, k] = json.loads(summary.read_text()).get("learning_time_s", math.nan) \
                 if summary.is_file() else math.nan
     sets = {S: draw_scenarios(settings.task, settings.n_scenarios, S) for S in settings.seeds}
+    wanted = {(v.name, k, sc.seed) for v in variants for k in settings.demo_seeds for scs in sets.values() for sc in scs}
+    base_of = {sc.seed: S for S, scs in sets.items() for sc in scs}
     executor = make_executor(settings.executor, settings.workers, settings.address, initializer=init_worker)
     try:
         jobs = _jobs(settings, sets, variants, models, out_dir, executor, done)
-    except BaseException:
-        executor.close(cancel=True)
-        raise
-    wanted = {(v.name, k, sc.seed) for v in variants for k in settings.demo_seeds for scs in sets.values() for sc in scs}
-    bar = _Progress(progress, len(wanted), {key: r for key, r in done.items() if key in wanted})
-    base_of = {sc.seed: S for S, scs in sets.items() for sc in scs}
-    with log.open("a") as fh:
-        if log.stat().st_size and not log.read_text().endswith("\n"):
-            fh.write("\n")  # the last line was cut by a kill: new runs start their own line
+        bar = _Progress(progress, len(wanted), {key: r for key, r in done.items() if key in wanted})
+        with log.open("a") as fh:
+            if log.stat().st_size and not log.read_text().endswith("\n"):
+                fh.write("\n")  # the last line was cut by a kill: new runs start their own line
 
-        def record(job: Job, r: dict | None, error: str | None) -> None:
-            """Log one finished run (or its error) at once; its path and GIF go to their own files."""
-            name, k, scenario = job.key
-            if r is None:
-                r = {"variant": name, "scenario": scenario, "error": error, "attempts": 2,
-                     "latency": settings.latency, "pace": EXEC_PACE}
-            r.update(demo_seed=k, base_seed=base_of[scenario])
-            path = r.pop("task_point_path", None)
-            if path is not None:
-                r["task_point_path"] = save_path(out_dir, r, path)
-            gif = r.pop("video_gif", None)
-            if gif is not None:
-                (out_dir / f"{settings.task}_{name}_scenario{scenario}.gif").write_bytes(gif)
-            fh.write(json.dumps(r) + "\n")
-            fh.flush()
-            if error is None:
-                done[job.key] = r
-                crashed.pop(job.key, None)
-            else:
-                crashed[job.key] = r
-                print(f"[evaluate] {name} scenario {scenario} failed twice: {error}", file=sys.stderr, flush=True)
-            bar.update(name, None if error else r)
+            def record(job: Job, r: dict | None, error: str | None) -> None:
+                """Log one finished run (or its error) at once; its path and GIF go to their own files."""
+                name, k, scenario = job.key
+                if r is None:
+                    r = {"variant": name, "scenario": scenario, "error": error, "attempts": 2,
+                         "latency": settings.latency, "pace": EXEC_PACE}
+                r.update(demo_seed=k, base_seed=base_of[scenario], settings=run_settings)
+                path = r.pop("task_point_path", None)
+                if path is not None:
+                    r["task_point_path"] = save_path(out_dir, r, path)
+                gif = r.pop("video_gif", None)
+                if gif is not None:
+                    (out_dir / f"{settings.task}_{name}_scenario{scenario}.gif").write_bytes(gif)
+                fh.write(json.dumps(r) + "\n")
+                fh.flush()
+                if error is None:
+                    done[job.key] = r
+                    crashed.pop(job.key, None)
+                else:
+                    crashed[job.key] = r
+                    print(f"[evaluate] {name} scenario {scenario} failed twice: {error}", file=sys.stderr, flush=True)
+                bar.update(name, None if error else r)
 
-        run_jobs(run_one_shipped if executor.remote else run_one, jobs, record, executor)
-    bar.close()
+            run_jobs(run_one_shipped if executor.remote else run_one, jobs, record, executor)
+        bar.close()
+    finally:
+        executor.close(cancel=True)  # (run_jobs closed it already unless something failed before)
     return _write_results(settings, out_dir, models, variants, sets, done, crashed, learn_s)
 
 

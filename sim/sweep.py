@@ -5,6 +5,8 @@ outcome to ``on_result(job, result, error)`` as soon as it finishes (in completi
 caller can log it at once. A job whose call raises, or whose worker dies (a process killed by
 the kernel, a crashed Ray worker), is run once more (``retries``); if it fails again
 ``on_result`` gets ``result=None`` and ``error`` (one line: the exception's type and message).
+A dead worker of the local pool fails every job of the pool; those are run again one at a time,
+so that only the job that kills a worker on its own is charged with the failure.
 Ctrl-C in the driver stops everything and propagates: what was in flight is lost, what finished
 was handed over already.
 
@@ -23,10 +25,11 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 from collections.abc import Callable, Iterable
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["EXECUTORS", "Job", "LocalExecutor", "RayExecutor", "make_executor", "run_jobs"]
+__all__ = ["EXECUTORS", "Job", "LocalExecutor", "RayExecutor", "make_executor", "require_ray", "run_jobs"]
 
 EXECUTORS = ("local", "ray")
 
@@ -81,7 +84,7 @@ class LocalExecutor:
         futures = {pool.submit(fn, *job.args): job for job in jobs}
         for f in cf.as_completed(futures):
             e = f.exception()
-            if isinstance(e, cf.process.BrokenProcessPool):
+            if isinstance(e, BrokenProcessPool):
                 self._drop_pool()  # a worker died: this pool takes no more jobs, the next run starts one
             yield futures[f], (None if e else f.result()), e
 
@@ -103,19 +106,22 @@ class RayExecutor:
     remote = True
 
     def __init__(self, address: str | None = None, num_cpus: int | None = None):
-        try:
-            import ray
-        except ImportError as e:
-            from lfd.cli import UsageError
-            raise UsageError("--executor ray needs Ray: pip install 'lfd-landmarks[ray]'") from e
+        require_ray()
+        import ray
+
+        from lfd.cli import UsageError
         self._ray = ray
         self._started = not ray.is_initialized()
         if self._started:
             kw: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}
-            if address:
-                ray.init(address=address, **kw)
-            else:
-                ray.init(num_cpus=num_cpus, **kw)
+            try:
+                if address:
+                    ray.init(address=address, **kw)
+                else:
+                    ray.init(num_cpus=num_cpus, **kw)
+            except (ConnectionError, RuntimeError, ValueError) as e:
+                where = f"the Ray cluster at {address}" if address else "a local Ray"
+                raise UsageError(f"--executor ray: cannot start or reach {where} ({error_line(e)})") from e
 
     @property
     def cpus(self) -> int:
@@ -142,6 +148,15 @@ class RayExecutor:
             self._ray.shutdown()
 
 
+def require_ray() -> None:
+    """``UsageError`` naming the extra when Ray is not installed."""
+    import importlib.util
+
+    if importlib.util.find_spec("ray") is None:
+        from lfd.cli import UsageError
+        raise UsageError("--executor ray needs Ray: pip install 'lfd-landmarks[ray]'")
+
+
 def make_executor(name: str, workers: int = 2, address: str | None = None,
                   initializer: Callable[[], None] | None = None):
     """``"local"`` (``workers`` processes) or ``"ray"`` (``address``, or a local Ray of ``workers`` CPUs)."""
@@ -158,18 +173,31 @@ def run_jobs(fn: Callable, jobs: Iterable[Job], on_result: Callable[[Job, Any, s
              executor, retries: int = 1) -> None:
     """Run every job on ``executor``; ``on_result(job, result, None)`` for each success and
     ``on_result(job, None, error)`` for a job that failed ``retries + 1`` times."""
-    todo, attempt = list(jobs), 0
+    failures: dict = {}  # job key -> failures charged to it
+    todo = list(jobs)
     try:
         while todo:
-            again = []
+            again, orphans = [], []
             for job, result, e in executor.run(fn, todo):
                 if e is None:
                     on_result(job, result, None)
-                elif attempt < retries:
-                    again.append(job)
+                elif isinstance(e, BrokenProcessPool) and len(todo) > 1:
+                    orphans.append(job)  # a worker died: which job killed it is not known yet
                 else:
-                    on_result(job, None, error_line(e))
-            todo, attempt = again, attempt + 1
+                    failures[job.key] = failures.get(job.key, 0) + 1
+                    if failures[job.key] <= retries:
+                        again.append(job)
+                    else:
+                        on_result(job, None, error_line(e))
+            for job in orphans:  # each alone, so that a worker that dies again is its job's fault
+                for job_, result, e in executor.run(fn, [job]):
+                    if e is None:
+                        on_result(job_, result, None)
+                    else:
+                        failures[job_.key] = failures.get(job_.key, 0) + 1
+                        (again.append(job_) if failures[job_.key] <= retries
+                         else on_result(job_, None, error_line(e)))
+            todo = again
     except BaseException:
         executor.close(cancel=True)
         raise

@@ -297,3 +297,19 @@ def test_missing_model_is_trained_in_this_process(tmp_path, monkeypatch, capsys)
     assert config["options"]["tool"] == "gripper" and config["options"]["env"] == "bowl"
     assert seen[0][seen[0].index("--seed") + 1] == "0"
     assert ev.ensure_model(TASK, tmp_path / "models", demos, v) == out and len(seen) == 1  # trained once
+
+
+def test_runs_of_another_roadmap_size_or_models_folder_are_run_again(tmp_path, models, monkeypatch):
+    """``--resume`` counts only the runs made with this task, roadmap size and models folder."""
+    out = tmp_path / "eval"
+    monkeypatch.setattr(ev, "run_one", FakeRunOne())
+    ev.evaluate(_settings(), out, models)
+    for change in (dict(roadmap_size=20), dict(models=tmp_path / "models2")):
+        again = FakeRunOne()
+        monkeypatch.setattr(ev, "run_one", again)
+        other = change.get("models", models)
+        if other != models:
+            import shutil
+            shutil.copytree(models, other)
+        ev.evaluate(replace(_settings(), **{k: v for k, v in change.items() if k != "models"}), out, other, resume=True)
+        assert again.calls == _all_pairs(), change

@@ -63,7 +63,7 @@ def test_a_failing_job_is_retried_once_then_reported(tmp_path, workers):
     got = _collect(sweep_fakes.flaky, jobs, LocalExecutor(workers))
     assert got[("ok",)] == ("ok", None) and got[("once",)] == ("once", None)
     assert got[("always",)] == (None, "RuntimeError: always failed on purpose")  # one line
-    calls = {k: int((tmp_path / f"{k}.calls").read_text()) for k in ("ok", "once", "always")}
+    calls = {k: (tmp_path / f"{k}.calls").stat().st_size for k in ("ok", "once", "always")}
     assert calls == {"ok": 1, "once": 2, "always": 2}
 
 
@@ -71,7 +71,16 @@ def test_a_worker_that_dies_loses_only_its_jobs_and_they_are_retried(tmp_path):
     jobs = [Job((k,), (str(tmp_path), k, 1 if k == "dies" else 0, "die")) for k in ("a", "dies", "b", "c")]
     got = _collect(sweep_fakes.flaky, jobs, LocalExecutor(2))
     assert got == {(k,): (k, None) for k in ("a", "dies", "b", "c")}
-    assert int((tmp_path / "dies.calls").read_text()) == 2
+    assert (tmp_path / "dies.calls").stat().st_size == 2
+
+
+def test_a_job_that_always_kills_its_worker_is_the_only_one_charged(tmp_path):
+    """A dead worker fails the whole pool: its jobs run again one at a time, so the others
+    succeed and only the job that kills a worker on its own is reported."""
+    jobs = [Job((k,), (str(tmp_path), k, 9 if k == "killer" else 0, "die")) for k in ("a", "killer", "b", "c", "d")]
+    got = _collect(sweep_fakes.flaky, jobs, LocalExecutor(2))
+    assert {k for (k,), (r, e) in got.items() if e is None} == {"a", "b", "c", "d"}
+    assert got[("killer",)][0] is None and "BrokenProcessPool" in got[("killer",)][1]
 
 
 def test_grid_cells_spread_and_table(tmp_path, models, fakes, monkeypatch):
