@@ -27,7 +27,6 @@ from __future__ import annotations
 import functools
 import json
 import os
-import re
 import shlex
 import shutil
 import sys
@@ -37,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from lfd.cli import ArgumentParser, UsageError, check_device, check_device_available, run_main, writable_dir
-from lfd.learning.tasks import TASKS
+from lfd.learning.tasks import TASK_NAME, TASKS
 from lfd.train_log import Logger
 
 __all__ = [
@@ -54,7 +53,6 @@ __all__ = [
 
 PROG = "lfd-train"
 BUILT_IN_TASKS = tuple(TASKS)  # demonstrations can be generated for these (lfd.demo_generators)
-TASK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")  # a task name is also a folder name (./runs/<task>)
 
 # The paper's names of the landmark choices (its tables' rows; ``plan.py --variants`` combines them
 # as tool+env), mapped to ``lfd.learning.learn.FitConfig``'s values, which are accepted as aliases.

@@ -11,6 +11,7 @@ so a refused recording leaves nothing half-written. ``--out`` must not exist yet
 
 from __future__ import annotations
 
+import os
 import shutil
 import sys
 import tempfile
@@ -84,9 +85,11 @@ def main(argv=None, prog: str = PROG) -> int:
     """Import the recordings; 0 on success. ``UsageError`` / ``RecordingError`` on bad input."""
     from lfd.io.recordings import JointColumns, import_recordings
     from lfd.learning.demos import load_demos, save_demos
-    from lfd.learning.tasks import TaskSpec
+    from lfd.learning.tasks import TASK_NAME, TaskSpec
 
     args = build_parser(prog).parse_args(argv)
+    if not TASK_NAME.fullmatch(args.task):
+        raise UsageError(f"--task must be a name of letters, digits, '_' and '-', got {args.task!r}")
     if args.out.exists():
         raise UsageError(f"--out {args.out}: exists already; choose a new folder")
     if not args.rate > 0 or args.time_steps < 2:
@@ -95,6 +98,10 @@ def main(argv=None, prog: str = PROG) -> int:
     columns = JointColumns.load(args.columns) if args.columns else None
     ds, report = import_recordings(args.recordings, robot, args.rate, columns=columns, T_base_frame=_frame(args.frame_pose),
                                    max_gap=args.max_gap, trim=args.trim_pauses)
+    short = [(r["name"], r["samples"]) for r in report if r["samples"] < args.time_steps]
+    if short:
+        raise UsageError(f"{args.recordings}: demonstration(s) {short} have fewer samples at {args.rate:g} Hz than "
+                         f"--time-steps {args.time_steps}: record longer, raise --rate or lower --time-steps")
     reference = args.reference or ds.landmark_names[0]
     if reference not in ds.landmark_names:
         raise UsageError(f"--reference {reference}: not among the recorded landmarks {list(ds.landmark_names)}")
@@ -105,6 +112,9 @@ def main(argv=None, prog: str = PROG) -> int:
     ds = replace(ds, task=task)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{args.out.name}-", dir=args.out.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    tmp.chmod(0o777 & ~umask)  # mkdtemp's folder is private; the set gets a folder's usual mode
     try:
         save_demos(tmp, ds)
         load_demos(tmp)  # every check of the format, before the set takes its name

@@ -128,11 +128,14 @@ def _numbers(path: Path, header: list[str], rows: list[list[str]], columns) -> n
     return out
 
 
-def _check_times(path: Path, t: np.ndarray, max_gap: float, what: str = "") -> None:
+def _check_times(path: Path, t: np.ndarray, max_gap: float, what: str = "", rows=None) -> None:
+    """Time increases and has no gap over ``max_gap``; ``rows``: the file's data-row index of
+    each entry of ``t`` (default: consecutive), for the message."""
     d = np.diff(t)
     if (d <= 0).any():
         i = int(np.flatnonzero(d <= 0)[0])
-        raise RecordingError(f"{path}: {what}time does not increase at row {i + 3} ({t[i + 1]:g} s after {t[i]:g} s)")
+        row = (i + 1 if rows is None else int(rows[i + 1])) + 2  # 1-based, after the header
+        raise RecordingError(f"{path}: {what}time does not increase at row {row} ({t[i + 1]:g} s after {t[i]:g} s)")
     if (d > max_gap).any():
         i = int(np.argmax(d))
         raise RecordingError(f"{path}: {what}a gap of {d[i]:.3g} s between {t[i]:g} s and {t[i + 1]:g} s "
@@ -170,7 +173,7 @@ def _landmark_tracks(path: Path, T_base_frame: np.ndarray, max_gap: float) -> di
     for name in dict.fromkeys(names.tolist()):  # in order of first appearance
         sel = np.flatnonzero(names == name)
         t = a[sel, 0]
-        _check_times(path, t, max_gap, what=f"landmark {name!r}: ")
+        _check_times(path, t, max_gap, what=f"landmark {name!r}: ", rows=sel)
         T = np.tile(np.eye(4), (len(sel), 1, 1))
         T[:, :3, :3] = Rotation.from_quat(a[sel, 4:8] / norm[sel, None]).as_matrix()
         T[:, :3, 3] = a[sel, 1:4]

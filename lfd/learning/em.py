@@ -44,6 +44,10 @@ class FitData:
         # a demonstration with still landmarks repeats its poses); lm_row maps an observation to
         # its row, lm_demo a row to its demonstration, lm_counts the observations of each row
         poses = [np.asarray(d.landmarks) for d in demoset.demos]
+        bad = [d.name or str(i) for i, (d, p) in enumerate(zip(demoset.demos, poses))
+               if p.ndim == 4 and len(p) != d.n_samples]
+        if bad:
+            raise ValueError(f"demonstration(s) {bad}: tracked landmark poses need one pose per sample")
         self.moving = any(p.ndim == 4 for p in poses)
         if self.moving:
             lm = np.concatenate([p if p.ndim == 4 else np.broadcast_to(p, (n, *p.shape))

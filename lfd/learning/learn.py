@@ -307,14 +307,10 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     check_learnable(demoset, cfg)
     fixed = _fixed_landmarks(demoset, cfg)
     data = FitData(demoset, kin, dtype, device)
-    unidentified = identifiability_notes(demoset, data.T_world_ee.cpu().numpy(), cfg)
     t_fk = time.perf_counter() - t0
     torch.manual_seed(cfg.seed)
 
     log = _run_restarts(demoset, data, cfg, fixed, callback, dtype, device, on_restart, resume, fingerprint)
-    for text in unidentified:
-        if text not in log.notes:  # a resumed checkpoint's notes may hold it already
-            log.note(text)
     assert log.best is not None
     best_r = log.best[0]
     env_before = {n: float(x) for n, x in zip(names, log.best[1][1].cpu().numpy())}
@@ -332,6 +328,10 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
         det = torch.full((data.M,), math.inf, dtype=det_rows.dtype, device=det_rows.device).scatter_reduce(
             0, data.lm_demo, det_rows, reduce="amin").cpu().numpy()  # (M,) the least per demonstration
         lo, hi = float(det_rows.min()), float(det_rows.max())
+        R_virt_ee = (A[data.lm_row] @ data.T_world_ee[:, :3, :3]).cpu().numpy()  # (N, 3, 3)
+    for text in identifiability_notes(demoset, R_virt_ee, cfg):
+        if text not in log.notes:  # a resumed checkpoint's notes may hold it already
+            log.note(text)
     if lo < 0.5 or hi > 2.0:
         log.note(f"degenerate virtual landmark: |det A| of K_virt^-1 ranges {lo:.3g}..{hi:.3g} "
                  f"(1 for a rigid frame); the mixture shrinks or stretches the task features")

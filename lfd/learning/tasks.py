@@ -11,10 +11,14 @@ from __future__ import annotations
 import json
 import math
 import numbers
+import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-__all__ = ["POUR", "POWDER", "TASKS", "TaskSpec", "check_point", "check_stride", "check_whole", "task_from_name"]
+__all__ = ["POUR", "POWDER", "TASKS", "TASK_NAME", "TaskSpec", "check_point", "check_stride", "check_whole", "task_from_name"]
+
+
+TASK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")  # a task's name is also a folder name (./runs/<task>)
 
 
 def check_whole(value, what: str, minimum: int = 1) -> int:
