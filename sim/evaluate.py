@@ -256,7 +256,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
         raise UsageError(f"{out_dir} already holds {lines} logged run(s): pass --resume to continue that "
                          "evaluation, or choose another --out")
     if settings.executor == "ray":
-        require_ray()  # before hours of training, not after
+        require_ray(settings.address)  # before hours of training, not after
     out_dir.mkdir(parents=True, exist_ok=True)
     learn_s = {}
     for k in settings.demo_seeds:

@@ -106,7 +106,7 @@ class RayExecutor:
     remote = True
 
     def __init__(self, address: str | None = None, num_cpus: int | None = None):
-        require_ray()
+        require_ray(address)
         import ray
 
         from lfd.cli import UsageError
@@ -148,13 +148,33 @@ class RayExecutor:
             self._ray.shutdown()
 
 
-def require_ray() -> None:
-    """``UsageError`` naming the extra when Ray is not installed."""
+def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """``UsageError`` unless a TCP connection to ``address`` (``host:port``, optionally
+    ``ray://host:port``; ``auto`` is left to Ray) opens within ``timeout_s``."""
+    import socket
+
+    from lfd.cli import UsageError
+    if address == "auto":
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    try:
+        with socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout_s):
+            pass
+    except (OSError, ValueError) as e:
+        raise UsageError(f"--address {address}: no Ray cluster answers there ({e}); start one with "
+                         f"'ray start --head' and pass the address it prints") from None
+
+
+def require_ray(address: str | None = None) -> None:
+    """``UsageError`` naming the extra when Ray is not installed, or when nothing answers at
+    ``address`` (``ray.init`` itself would retry an unreachable address for minutes)."""
     import importlib.util
 
     if importlib.util.find_spec("ray") is None:
         from lfd.cli import UsageError
         raise UsageError("--executor ray needs Ray: pip install 'lfd-landmarks[ray]'")
+    if address:
+        _check_reachable(address)
 
 
 def make_executor(name: str, workers: int = 2, address: str | None = None,

@@ -182,3 +182,12 @@ def test_a_sweep_killed_half_way_resumes_to_the_uninterrupted_results(tmp_path, 
     assert len(rows) == 10
     whole = ev.evaluate(_settings(), tmp_path / "whole", models)
     assert _comparable(resumed) == _comparable(whole)
+
+
+def test_an_unreachable_ray_address_is_refused_before_any_training(tmp_path, monkeypatch):
+    pytest.importorskip("ray")
+    trained = []
+    monkeypatch.setattr(ev, "train_main", sweep_fakes.fake_train(trained))
+    with pytest.raises(UsageError, match="--address 127.0.0.1:1: no Ray cluster answers there"):
+        ev.evaluate(_settings(executor="ray", address="127.0.0.1:1"), tmp_path / "eval", tmp_path / "models")
+    assert trained == [] and not (tmp_path / "models").exists()
