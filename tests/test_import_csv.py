@@ -155,3 +155,21 @@ def test_command_line_refusals(tmp_path, capsys):
     r = _import(capsys, DATA, tmp_path / "o3", "--robot-json", str(tmp_path / "robot.json"))
     assert r.returncode == 2 and "--robot-json" in r.stderr
     assert "no recordings" in _import(capsys, tmp_path / "out", tmp_path / "o4").stderr
+
+
+def test_angles_recorded_modulo_a_turn_are_unwrapped_into_the_limits(tmp_path):
+    """A recorder that reports angles in [0, 2 pi): the wrist roll passing through 0 jumps from
+    ~0 to ~2 pi and a negative joint reads 2 pi less; the import gives the continuous angles."""
+    t = np.linspace(0, 2, 41)
+    q = np.tile([0.1, -0.5, -0.3, 1.2, 0.2, 1.0, 0.0], (len(t), 1))
+    q[:, 6] = np.linspace(0.4, -0.4, len(t))  # w2 passes through 0
+    q[:, 1] = -0.5  # s1 negative throughout
+    recorded = np.mod(q, 2 * np.pi)
+    demo = tmp_path / "rec" / "d1"
+    demo.mkdir(parents=True)
+    names = list(BAXTER_LEFT.joint_names)
+    _write(demo / "joints.csv", ["time", *names], [[f"{a:.3f}", *(f"{x:.6f}" for x in row)] for a, row in zip(t, recorded)])
+    _write(demo / "landmarks.csv", ["time", "name", "x", "y", "z", "qx", "qy", "qz", "qw"],
+           [["0.0", "bowl", "0.8", "0.3", "0.0", "0", "0", "0", "1"]])
+    ds, _ = import_recordings(tmp_path / "rec", BAXTER_LEFT, 20.0)
+    assert np.abs(ds.demos[0].q - q).max() < 1e-5

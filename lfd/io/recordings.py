@@ -8,7 +8,8 @@ folder of their own (``DEMO/joints.csv``, ``DEMO/landmarks.csv``) or as a pair o
   as in its URDF: the Baxter SDK's joint recorder writes ``time,left_s0,left_s1,...`` (its other
   columns, the gripper and the other arm, are ignored). Another layout is described by a
   ``JointColumns`` mapping (the time column's name, each joint's column, degrees or radians).
-  Angles are unwrapped (a recorder that wraps at ±pi does not make a joint jump by 2 pi).
+  Angles are unwrapped (a recorder that wraps at ±pi does not make a joint jump by 2 pi) and
+  moved by whole turns into the joint's limits (one that reports angles in [0, 2 pi)).
 * **Landmarks**: a header row and the columns ``time,name,x,y,z,qx,qy,qz,qw``: the pose of the
   landmark ``name`` at ``time`` in a frame the user names (``T_base_frame``, the robot base by
   default), metres and a unit quaternion. A landmark read once holds still; one read at several
@@ -198,6 +199,20 @@ def _at_times(path: Path, name: str, track, t: np.ndarray, max_gap: float) -> np
     return out
 
 
+def _into_limits(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """Each unwrapped joint column ``q (S, d)`` shifted by the whole turns (2 pi) that bring it
+    within its limits, when some do: a recorder that reports angles in [0, 2 pi) gives a joint
+    at -0.1 rad as 6.18."""
+    q = q.copy()
+    for j in range(q.shape[1]):
+        for k in sorted(range(-3, 4), key=abs):  # no shift first
+            shifted = q[:, j] + 2 * np.pi * k
+            if (shifted >= lower[j] - LIMIT_TOLERANCE).all() and (shifted <= upper[j] + LIMIT_TOLERANCE).all():
+                q[:, j] = shifted
+                break
+    return q
+
+
 def _limits(robot: RobotSpec) -> tuple[np.ndarray, np.ndarray]:
     """The robot's joint limits from its URDF (``RecordingError`` when it cannot be loaded)."""
     from lfd.robot.kinematics import KinematicModel, KinematicsError
@@ -236,6 +251,7 @@ def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: Tas
     demos, report, names = [], [], None
     for name, jpath, lpath in find_recordings(root):
         t_raw, q_raw = _joints(jpath, robot, columns, max_gap)
+        q_raw = _into_limits(q_raw, lower, upper)
         out = (q_raw < lower - LIMIT_TOLERANCE) | (q_raw > upper + LIMIT_TOLERANCE)
         if out.any():
             i, j = (int(x) for x in np.argwhere(out)[0])
