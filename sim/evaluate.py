@@ -181,11 +181,12 @@ def save_path(out_dir: Path, row: dict, path) -> str:
     return rel.as_posix()
 
 
-def _read_log(log: Path, latency: str, run_settings: dict) -> tuple[dict, dict, int]:
+def _read_log(log: Path, latency: str, run_settings: dict) -> tuple[dict, dict, int, bool]:
     """The runs logged in ``log`` that count for an evaluation in latency mode ``latency`` with
     ``run_settings`` (task, roadmap size, models folder; rows logged before they were recorded count):
-    ``(done, crashed, lines)``, each keyed by ``(variant, demo_seed, scenario)``: finished runs,
-    runs that failed twice (run again), and how many readable lines the log holds."""
+    ``(done, crashed, lines, cut)``, the first two keyed by ``(variant, demo_seed, scenario)``: finished runs,
+    runs that failed twice (run again), how many readable lines the log holds, and whether its
+    last line was cut (by a kill while it was written)."""
     done: dict = {}
     crashed: dict = {}
     lines = 0
@@ -209,7 +210,8 @@ def _read_log(log: Path, latency: str, run_settings: dict) -> tuple[dict, dict, 
         else:
             done[key] = r
             crashed.pop(key, None)
-    return done, crashed, lines
+    cut = bool(text) and not text.endswith("\n")  # the last line was cut by a kill
+    return done, crashed, lines, cut
 
 
 class _Progress:
@@ -251,7 +253,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     variants = [by_name[n] for n in settings.variants]
     log = out_dir / "runs.jsonl"
     run_settings = {"task": settings.task, "roadmap_size": settings.roadmap_size, "models": str(models)}
-    done, crashed, lines = _read_log(log, settings.latency, run_settings)
+    done, crashed, lines, cut = _read_log(log, settings.latency, run_settings)
     if lines and not resume:
         raise UsageError(f"{out_dir} already holds {lines} logged run(s): pass --resume to continue that "
                          "evaluation, or choose another --out")
@@ -272,8 +274,8 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
         jobs = _jobs(settings, sets, variants, models, out_dir, executor, done)
         bar = _Progress(progress, len(wanted), {key: r for key, r in done.items() if key in wanted})
         with log.open("a") as fh:
-            if log.stat().st_size and not log.read_text().endswith("\n"):
-                fh.write("\n")  # the last line was cut by a kill: new runs start their own line
+            if cut:
+                fh.write("\n")  # new runs start their own line
 
             def record(job: Job, r: dict | None, error: str | None) -> None:
                 """Log one finished run (or its error) at once; its path and GIF go to their own files."""
@@ -287,7 +289,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
                     r["task_point_path"] = save_path(out_dir, r, path)
                 gif = r.pop("video_gif", None)
                 if gif is not None:
-                    (out_dir / f"{settings.task}_{name}_scenario{scenario}.gif").write_bytes(gif)
+                    _gif_path(out_dir, settings.task, name, scenario).write_bytes(gif)
                 fh.write(json.dumps(r) + "\n")
                 fh.flush()
                 if error is None:
@@ -303,6 +305,11 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     finally:
         executor.close(cancel=True)  # (run_jobs closed it already unless something failed before)
     return _write_results(settings, out_dir, models, variants, sets, done, crashed, learn_s)
+
+
+def _gif_path(out_dir: Path, task: str, variant: str, scenario: int) -> Path:
+    """Where a run's video goes (``--video``: the first scenario of each variant)."""
+    return out_dir / f"{task}_{variant}_scenario{scenario}.gif"
 
 
 def _jobs(settings: EvalSettings, sets: dict, variants: list, models: Path, out_dir: Path, executor,
@@ -325,7 +332,7 @@ def _jobs(settings: EvalSettings, sets: dict, variants: list, models: Path, out_
                         args: tuple = (shared[md], settings.task, sc, v, settings.roadmap_size, video, True,
                                        settings.latency)
                     else:
-                        gif = str(out_dir / f"{settings.task}_{v.name}_scenario{sc.seed}.gif") if video else None
+                        gif = str(_gif_path(out_dir, settings.task, v.name, sc.seed)) if video else None
                         args = (settings.task, sc, v, str(md), settings.roadmap_size, gif, True, settings.latency)
                     jobs.append(Job((v.name, k, sc.seed), args))
     return jobs

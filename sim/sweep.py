@@ -195,28 +195,30 @@ def run_jobs(fn: Callable, jobs: Iterable[Job], on_result: Callable[[Job, Any, s
     ``on_result(job, None, error)`` for a job that failed ``retries + 1`` times."""
     failures: dict = {}  # job key -> failures charged to it
     todo = list(jobs)
+
+    def settle(job: Job, result, e, again: list) -> None:
+        """Hand a success over; charge a failure to its job, to run again or to report."""
+        if e is None:
+            on_result(job, result, None)
+            return
+        failures[job.key] = failures.get(job.key, 0) + 1
+        if failures[job.key] <= retries:
+            again.append(job)
+        else:
+            on_result(job, None, error_line(e))
+
     try:
         while todo:
-            again, orphans = [], []
+            again: list = []
+            orphans = []
             for job, result, e in executor.run(fn, todo):
-                if e is None:
-                    on_result(job, result, None)
-                elif isinstance(e, BrokenProcessPool) and len(todo) > 1:
+                if isinstance(e, BrokenProcessPool) and len(todo) > 1:
                     orphans.append(job)  # a worker died: which job killed it is not known yet
                 else:
-                    failures[job.key] = failures.get(job.key, 0) + 1
-                    if failures[job.key] <= retries:
-                        again.append(job)
-                    else:
-                        on_result(job, None, error_line(e))
+                    settle(job, result, e, again)
             for job in orphans:  # each alone, so that a worker that dies again is its job's fault
                 for job_, result, e in executor.run(fn, [job]):
-                    if e is None:
-                        on_result(job_, result, None)
-                    else:
-                        failures[job_.key] = failures.get(job_.key, 0) + 1
-                        (again.append(job_) if failures[job_.key] <= retries
-                         else on_result(job_, None, error_line(e)))
+                    settle(job_, result, e, again)
             todo = again
     except BaseException:
         executor.close(cancel=True)

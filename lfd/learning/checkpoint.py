@@ -209,6 +209,19 @@ def save_checkpoint(folder: str | Path, progress: FitProgress) -> Path:
     return folder / RECORD
 
 
+def read_json_record(path: Path, fmt: str, error: type[Exception], what: str) -> dict:
+    """The JSON object in ``path`` whose ``"format"`` is ``fmt``; ``error`` (naming the file) when
+    it is not valid JSON (or nested too deep to read) or not ours."""
+    try:
+        rec = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError, RecursionError) as e:
+        raise error(f"{path}: not valid JSON ({e})") from e
+    if not isinstance(rec, dict) or rec.get("format") != fmt:
+        raise error(f"{path}: not an lfd {what} (expected format {fmt!r}, got "
+                    f"{rec.get('format') if isinstance(rec, dict) else rec!r})")
+    return rec
+
+
 def load_checkpoint(folder: str | Path) -> FitProgress:
     """Read what ``save_checkpoint`` wrote.
 
@@ -222,12 +235,7 @@ def load_checkpoint(folder: str | Path) -> FitProgress:
     rec_path = folder / RECORD
     if not rec_path.is_file():
         raise CheckpointError(f"{folder}: no checkpoint to resume from ({RECORD} is missing)")
-    try:
-        rec = json.loads(rec_path.read_text())
-    except (ValueError, UnicodeDecodeError) as e:
-        raise CheckpointError(f"{rec_path}: not valid JSON ({e})") from e
-    if not isinstance(rec, dict) or rec.get("format") != FORMAT:
-        raise CheckpointError(f"{rec_path}: not an lfd fit checkpoint (expected format {FORMAT!r})")
+    rec = read_json_record(rec_path, FORMAT, CheckpointError, "fit checkpoint")
     try:
         pt_path = folder / Path(str(rec["state_file"])).name
         data = pt_path.read_bytes()

@@ -310,13 +310,8 @@ class TaskModel:
         for p in (cfg_path, pt_path):
             if not p.is_file():
                 raise ModelFormatError(f"{model_dir}: not an lfd task model (missing {p.name})")
-        try:
-            cfg = json.loads(cfg_path.read_text())
-        except (ValueError, RecursionError) as e:
-            raise ModelFormatError(f"{cfg_path}: not valid JSON ({e})") from e
-        if not isinstance(cfg, dict) or cfg.get("format") != FORMAT:
-            raise ModelFormatError(f"{cfg_path}: not an lfd task model config (expected format "
-                                   f"{FORMAT!r}, got {cfg.get('format') if isinstance(cfg, dict) else cfg!r})")
+        from lfd.learning.checkpoint import read_json_record
+        cfg = read_json_record(cfg_path, FORMAT, ModelFormatError, "task model config")
         try:
             state = torch.load(pt_path, map_location="cpu", weights_only=True)
         except Exception as e:  # torch raises several kinds for foreign or damaged files
