@@ -34,6 +34,7 @@ __all__ = [
     "TASK_POINTS",
     "DemoPath",
     "bowl_frame_path",
+    "check_roll",
     "draw_path",
     "dump_pose",
     "rotation_level",
@@ -128,10 +129,23 @@ DUMP_NOMINAL = {"powder": (0.055, 120.0), "pour": (0.135, 115.0)}
 ROLL_SPREAD = {"powder": 10.0, "pour": 8.0}
 
 
-def _dump_roll(task: str, rng) -> float:
-    """A demonstration's dumping / pouring roll (rad): uniform within ``ROLL_SPREAD`` of the nominal."""
+def check_roll(roll_deg) -> float | None:
+    """A demonstrator's nominal roll (deg) checked: None (the task's, ``DUMP_NOMINAL``) or a
+    finite number in [45, 180] (less does not empty a spoon or a pitcher, more turns it back)."""
+    if roll_deg is None:
+        return None
+    r = float(roll_deg)
+    if not (np.isfinite(r) and 45.0 <= r <= 180.0):
+        raise ValueError(f"the demonstrator's roll must be within [45, 180] degrees, got {roll_deg!r}")
+    return r
+
+
+def _dump_roll(task: str, rng, roll_deg: float | None = None) -> float:
+    """A demonstration's dumping / pouring roll (rad): uniform within ``ROLL_SPREAD`` of the
+    nominal ``roll_deg`` (None: the task's, ``DUMP_NOMINAL``)."""
     spread = ROLL_SPREAD[task]
-    return float(np.deg2rad(DUMP_NOMINAL[task][1] + rng.uniform(-spread, spread)))
+    nominal = DUMP_NOMINAL[task][1] if roll_deg is None else float(roll_deg)
+    return float(np.deg2rad(nominal + rng.uniform(-spread, spread)))
 
 
 def dump_pose(task: str, bowl_xy, dyaw: float = 0.0, tool_point=None) -> np.ndarray:
@@ -151,8 +165,10 @@ def dump_pose(task: str, bowl_xy, dyaw: float = 0.0, tool_point=None) -> np.ndar
     return T
 
 
-def _keyframes(task: str, bowl_xy, start: np.ndarray, rng, tool_point) -> tuple[np.ndarray, list]:
-    """Keyframes (K, 6) and per-segment (nominal duration, pause after the keyframe) lists."""
+def _keyframes(task: str, bowl_xy, start: np.ndarray, rng, tool_point,
+               roll_deg: float | None = None) -> tuple[np.ndarray, list]:
+    """Keyframes (K, 6) and per-segment (nominal duration, pause after the keyframe) lists;
+    ``roll_deg``: the demonstrator's nominal roll (None: the task's)."""
     bx, by = bowl_xy
     top = L.TABLE_TOP_Z
     yaw = _facing(bowl_xy) + np.deg2rad(rng.uniform(-10, 10))  # facing differs by some degrees
@@ -169,14 +185,14 @@ def _keyframes(task: str, bowl_xy, start: np.ndarray, rng, tool_point) -> tuple[
     mid += side / max(np.linalg.norm(side), 1e-9) * rng.normal(0, 0.03)  # approach deviates a few cm
     if task == "powder":
         work = np.array([bx, by, top + L.BOWL_HEIGHT + rng.uniform(0.04, 0.07)]) + np.r_[rng.normal(0, 0.012, 2), 0]
-        turned = dict(roll=_dump_roll(task, rng), pitch=tilt)
+        turned = dict(roll=_dump_roll(task, rng, roll_deg), pitch=tilt)
         # a person flips the spoon over briskly and holds it there while the powder falls
         hold, turn_t = rng.uniform(1.0, 1.8), 1.3
     else:
         # the cup hangs beside and 0.1 m below the spout: the task point well above the rim
         work = np.array([bx, by, top + L.BOWL_HEIGHT + rng.uniform(0.12, 0.15)]) + np.r_[rng.normal(0, 0.01, 2), 0]
         # the spout (-x) turned down, well past 90 deg: a person pours until the pitcher is empty
-        turned = dict(roll=_dump_roll(task, rng), pitch=tilt)
+        turned = dict(roll=_dump_roll(task, rng, roll_deg), pitch=tilt)
         work[:2] += _pour_aim(yaw, turned["pitch"], turned["roll"], tool_point)
         hold, turn_t = rng.uniform(1.2, 2.0), 2.4
     end = start[:3] + np.r_[rng.normal(0, 0.03, 2), rng.uniform(0.0, 0.05)]
@@ -198,7 +214,7 @@ def _keyframes(task: str, bowl_xy, start: np.ndarray, rng, tool_point) -> tuple[
 
 
 def draw_path(task: str, bowl_xy, start: np.ndarray, dt: float, rng: np.random.Generator,
-              duration_scale: float | None = None, tool_point=None) -> DemoPath:
+              duration_scale: float | None = None, tool_point=None, roll_deg: float | None = None) -> DemoPath:
     """A random human-like demonstration path.
 
     Parameters
@@ -211,12 +227,15 @@ def draw_path(task: str, bowl_xy, start: np.ndarray, dt: float, rng: np.random.G
     duration_scale : total duration factor (default uniform in [0.7, 1.3], i.e. +-30 %).
     tool_point : (3,) the followed task point in the gripper frame (default ``TASK_POINTS[task]``);
         pouring aims the pitcher's stream, so the pour path depends on where this point is.
+    roll_deg : the demonstrator's nominal roll while dumping or pouring, degrees (each
+        demonstration within ``ROLL_SPREAD`` of it; default the task's ``DUMP_NOMINAL``: a person
+        who tilts less, e.g. 105 for the pour, is another demonstrator).
     """
     if task not in TASK_POINTS:
         raise ValueError(f"task must be 'powder' or 'pour', got {task!r}")
     tool_point = TASK_POINTS[task] if tool_point is None else tool_point
     kf, timing = _keyframes(task, np.asarray(bowl_xy, dtype=float), np.asarray(start, dtype=float), rng,
-                            np.asarray(tool_point, dtype=float))
+                            np.asarray(tool_point, dtype=float), check_roll(roll_deg))
     scale = rng.uniform(0.7, 1.3) if duration_scale is None else float(duration_scale)
     # time knots: non-uniform speed (each segment's duration varies on its own) and pauses
     t_knots, u_knots, t = [0.0], [0.0], 0.0

@@ -42,7 +42,7 @@ from lfd.robot.ik import IKConfig, solve_ik
 from lfd.robot.kinematics import KinematicModel
 from lfd.robot.robots import BAXTER_LEFT
 from sim import layout as L
-from sim.demo_paths import TASK_POINTS, DemoPath, draw_path
+from sim.demo_paths import DUMP_NOMINAL, TASK_POINTS, DemoPath, check_roll, draw_path
 
 __all__ = [
     "DEFAULT_PLACEMENT",
@@ -225,8 +225,9 @@ def replay(world, q: np.ndarray, dt: float, settle: float = 0.3, hold: float = 0
     return world.fraction_in_bowl(), sorted(set(hits))
 
 
-def _draw_one(world, kin, fns, task, bowl_xy, tool_point, dt, rng) -> DemoAttempt:
-    path = draw_path(task, bowl_xy, _start_pose(kin, tool_point), dt, rng, tool_point=tool_point)
+def _draw_one(world, kin, fns, task, bowl_xy, tool_point, dt, rng, roll_deg=None) -> DemoAttempt:
+    path = draw_path(task, bowl_xy, _start_pose(kin, tool_point), dt, rng, tool_point=tool_point,
+                     roll_deg=roll_deg)
     lo, hi = kin.lower.numpy(), kin.upper.numpy()
     # redundancy resolved differently per demonstration
     q_rest = L.HOME_Q + rng.normal(0.0, 0.3, 7) + np.r_[0, 0, 0, -0.3, 0, 0, 0]
@@ -256,7 +257,8 @@ def _draw_one(world, kin, fns, task, bowl_xy, tool_point, dt, rng) -> DemoAttemp
 
 
 def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, progress: bool = True,
-             keep_attempts: list | None = None, placement: str | None = None) -> list[Path]:
+             keep_attempts: list | None = None, placement: str | None = None,
+             roll_deg: float | None = None) -> list[Path]:
     """Generate ``n`` demonstrations of ``task`` into ``out_dir``; returns the ``.npz`` paths.
 
     Writes ``demo_000.npz`` ... (``lfd.learning.demos`` format), ``task.json`` and ``ground_truth.json``
@@ -264,7 +266,8 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
     ``task_point``: (3,) metres in the gripper frame, default ``TASK_POINTS[task]``.
     ``keep_attempts``: a list that receives the kept ``DemoAttempt`` objects (for tests/plots).
     ``placement``: how the bowls are spread over the square (``bowl_positions``); None: the
-    task's ``DEFAULT_PLACEMENT``.
+    task's ``DEFAULT_PLACEMENT``. ``roll_deg``: the demonstrator's nominal roll while dumping or
+    pouring (``sim.demo_paths.draw_path``; None: the task's ``DUMP_NOMINAL``).
 
     Raises
     ------
@@ -287,6 +290,7 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
         raise ValueError(f"task_point {tool_point.tolist()} is more than 0.5 m from the gripper")
     if placement not in PLACEMENTS:
         raise ValueError(f"placement must be one of {PLACEMENTS}, got {placement!r}")
+    roll_deg = check_roll(roll_deg)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -306,7 +310,7 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
             t0 = time.time()
             bowl_xy = all_bowls[i] if all_bowls is not None else bowl_positions(1, rng, "uniform")[0]
             for attempt in range(1, MAX_ATTEMPTS_PER_DEMO + 1):
-                a = _draw_one(world, kin, fns, task, bowl_xy, tool_point, spec.dt, rng)
+                a = _draw_one(world, kin, fns, task, bowl_xy, tool_point, spec.dt, rng, roll_deg)
                 if not a.failure:
                     break
                 if progress:
@@ -331,7 +335,8 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
     spec.save(out_dir / "task.json")
     truth = {"tool_point": tool_point.tolist(), "bowl_landmark": "bowl", "task": task,
              "bowl_xy": bowls, "durations": durations, "attempts": attempts_used, "seed": int(seed),
-             "placement": placement}
+             "placement": placement,
+             "roll_deg": DUMP_NOMINAL[task][1] if roll_deg is None else roll_deg}
     (out_dir / "ground_truth.json").write_text(json.dumps(truth, indent=2) + "\n")
     if progress:
         print(f"{n} {task} demonstrations in {out_dir} ({time.time() - t_all:.0f} s)", flush=True)
@@ -348,6 +353,10 @@ def main(argv=None) -> int:
                          f"(default: the task's, {DEFAULT_PLACEMENT})")
     ap.add_argument("--task-point", type=float, nargs=3, metavar=("X", "Y", "Z"),
                     help="hidden tool point, metres in the gripper frame (default: the task's)")
+    ap.add_argument("--roll", type=float, default=None, metavar="DEG",
+                    help="the demonstrator's nominal roll while dumping or pouring, degrees, each "
+                         "demonstration within a few degrees of it (default: the task's, "
+                         f"{ {k: v[1] for k, v in DUMP_NOMINAL.items()} })")
     ap.add_argument("--out", required=True, help="output folder")
     ap.add_argument("--plot", metavar="FILE.png", help="also draw the paths relative to the bowl")
     ap.add_argument("--quiet", action="store_true", help="no progress output")
@@ -359,11 +368,15 @@ def main(argv=None) -> int:
     if args.task_point is not None and (not np.all(np.isfinite(args.task_point))
                                         or np.linalg.norm(args.task_point) > 0.5):
         raise UsageError(f"--task-point must be 3 finite numbers within 0.5 m of the gripper, got {args.task_point}")
+    try:
+        check_roll(args.roll)
+    except ValueError as e:
+        raise UsageError(f"--roll: {e}") from None
     out = writable_dir(args.out)
     kept = []
     try:
         generate(args.task, out, n=args.n, seed=args.seed, task_point=args.task_point, progress=not args.quiet,
-                 keep_attempts=kept, placement=args.placement)
+                 keep_attempts=kept, placement=args.placement, roll_deg=args.roll)
     except RuntimeError as e:  # not bad input: the demonstrator could not do the task here
         print(f"python -m sim.demos: {e}", file=sys.stderr)
         return 1

@@ -99,12 +99,15 @@ def test_task_point_changes_the_followed_point(tmp_path, kin):
     assert _tracks(kin, a.q, a.path.T_world_tool, TASK_POINTS["powder"]) > 0.03
     truth = json.loads((tmp_path / "ground_truth.json").read_text())
     assert truth["tool_point"] == list(OTHER_POINT)
+    assert truth["roll_deg"] == 120.0  # the demonstrator's nominal roll is recorded (the powder's default)
 
 
 @pytest.mark.parametrize("args, msg", [
     (["--task", "stir", "--out", "X"], "--task"),
     (["--task", "powder", "--n", "0", "--out", "X"], "--n"),
     (["--task", "powder", "--task-point", "0", "0", "nan", "--out", "X"], "--task-point"),
+    (["--task", "pour", "--roll", "200", "--out", "X"], "--roll"),
+    (["--task", "pour", "--roll", "nan", "--out", "X"], "--roll"),
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, args, msg):
     args = [a if a != "X" else str(tmp_path / "out") for a in args]
@@ -217,3 +220,20 @@ def test_dump_roll_stays_within_the_demonstrators_spread(task):
     assert np.ptp(rolls) > spread  # drawn, not fixed
     if task == "pour":
         assert rolls.min() > 100.0
+
+
+def test_a_demonstrator_who_tilts_less():
+    """``roll_deg`` (``python -m sim.demos --roll``) is another demonstrator: the held roll is
+    drawn around it, not around the task's nominal; the same seed draws the same path otherwise."""
+    from sim.demo_paths import ROLL_SPREAD, draw_path
+
+    def rolls(roll_deg):
+        return np.array([np.rad2deg(draw_path("pour", (0.8, 0.3), np.array([0.6, 0.5, 0.0, 0.0]), 0.1,
+                                              np.random.default_rng(seed), roll_deg=roll_deg).keyframes[5, 5])
+                         for seed in range(20)])
+
+    less, default = rolls(105.0), rolls(None)
+    assert np.all(np.abs(less - 105.0) <= ROLL_SPREAD["pour"] + 1e-9)
+    np.testing.assert_allclose(default - less, 10.0, atol=1e-9)  # the same draws, shifted by 115 - 105
+    with pytest.raises(ValueError, match="roll"):
+        draw_path("pour", (0.8, 0.3), np.array([0.6, 0.5, 0.0, 0.0]), 0.1, np.random.default_rng(0), roll_deg=30.0)
