@@ -34,6 +34,7 @@ import numpy as np
 from lfd.cli import USER_ERRORS, UsageError, error_line
 from lfd.train_cli import ensure_demos
 from lfd.train_cli import main as train_main
+from sim.attitude import demo_tilt
 from sim.latency import parse_latency
 from sim.report import format_table, spread, strict_json, summarize
 from sim.runner import EXEC_PACE, init_worker, model_files, run_one, run_one_shipped
@@ -260,12 +261,13 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     if settings.executor == "ray":
         require_ray(settings.address)  # before hours of training, not after
     out_dir.mkdir(parents=True, exist_ok=True)
-    learn_s = {}
+    learn_s, tilt = {}, {}
     for k in settings.demo_seeds:
         for v in variants:
             summary = ensure_model(settings.task, models, demos, v, demo_seed=k) / "summary.json"
             learn_s[v.name, k] = json.loads(summary.read_text()).get("learning_time_s", math.nan) \
                 if summary.is_file() else math.nan
+        tilt[k] = demo_tilt(demos_for(settings.task, demos, k) or Path("runs") / "demos" / settings.task)["mean"]
     sets = {S: draw_scenarios(settings.task, settings.n_scenarios, S) for S in settings.seeds}
     wanted = {(v.name, k, sc.seed) for v in variants for k in settings.demo_seeds for scs in sets.values() for sc in scs}
     base_of = {sc.seed: S for S, scs in sets.items() for sc in scs}
@@ -284,6 +286,10 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
                     r = {"variant": name, "scenario": scenario, "error": error, "attempts": 2,
                          "latency": settings.latency, "pace": EXEC_PACE}
                 r.update(demo_seed=k, base_seed=base_of[scenario], settings=run_settings)
+                if error is None:  # the tilt against the demonstrations' (sim.attitude); NaN without them
+                    r.update(demo_tilt_deg=tilt[k],
+                             tilt_error_deg=r.get("executed_tilt_deg", math.nan) - tilt[k],
+                             planned_tilt_error_deg=r.get("planned_tilt_deg", math.nan) - tilt[k])
                 path = r.pop("task_point_path", None)
                 if path is not None:
                     r["task_point_path"] = save_path(out_dir, r, path)

@@ -27,7 +27,8 @@ the robot executes the first answer while the roadmap grows (anytime). Every re-
 reports), ``charged_ms`` (the simulated time it cost), and ``retraced`` waypoints. ``build_ms``
 is the first update (the roadmap's construction), before the first plan's ``initial_ms``; the
 arm holds at rest while the first plan is made. ``tracking_max_mm``: the largest distance of an
-arm frame or the tool point from where it was commanded.
+arm frame or the tool point from where it was commanded; ``planned_tilt_deg`` and
+``executed_tilt_deg``: the largest tilt of the tool (``sim.attitude``) commanded and reached.
 
 Success is the paper's: nothing the arm or tool touches (table, containers, obstacles) and at least
 ``success_fraction`` of the particles inside the bowl once they have settled.
@@ -41,9 +42,11 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import pybullet as p
+import torch
 
 from lfd.timing import PROFILES, plan_segments, step_clock
 from sim import layout as L
+from sim.attitude import tool_tilt_deg
 from sim.follow import PlanFollower
 from sim.latency import charged_s, parse_latency
 
@@ -115,6 +118,8 @@ class RunResult:
     switches: int = 0  # re-plans that arrived and took over
     retraced: int = 0  # waypoints retraced because a plan arrived after the robot passed its start
     tracking_max_mm: float = 0.0  # largest distance of an arm frame or the tool point from where commanded
+    planned_tilt_deg: float = 0.0  # largest tilt of the tool (sim.attitude) the arm was commanded to
+    executed_tilt_deg: float = 0.0  # largest tilt the tool reached
     plan_statuses: list = field(default_factory=list)
     duration_s: float = 0.0
     task_point_path: list = field(default_factory=list)  # [[x, y, z], ...] world, model tool point
@@ -176,6 +181,13 @@ def _tracking_error(planner, q_cmd: np.ndarray, q_act: np.ndarray) -> float:
     of the model's tool point (``TaskPlanner.keypoints``)."""
     P = planner.keypoints(np.stack([q_cmd, q_act]))  # (2, K, 3)
     return float(np.linalg.norm(P[0] - P[1], axis=-1).max())
+
+
+def _tilts(kin, q_cmd: np.ndarray, q_act: np.ndarray) -> np.ndarray:
+    """``(2,)`` the tool's tilt (deg, ``sim.attitude``) at the commanded and the actual configuration."""
+    with torch.no_grad():
+        T = kin.fk(torch.as_tensor(np.stack([q_cmd, q_act]), dtype=kin.dtype, device=kin.device))  # (2, 4, 4)
+    return tool_tilt_deg(T[:, :3, :3].cpu().numpy())
 
 
 def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = None,
@@ -252,8 +264,12 @@ class _ClosedLoop:
         if self.step % s.record_every == 0:
             T = world.T_world_gripper()
             result.task_point_path.append((T[:3, :3] @ self.tool + T[:3, 3]).round(5).tolist())
-            err = _tracking_error(self.planner, self.q_cmd, world.get_q())
+            q_act = world.get_q()
+            err = _tracking_error(self.planner, self.q_cmd, q_act)
             result.tracking_max_mm = max(result.tracking_max_mm, round(err * 1e3, 2))
+            planned, executed = _tilts(self.planner.model.kin, self.q_cmd, q_act)
+            result.planned_tilt_deg = max(result.planned_tilt_deg, round(float(planned), 2))
+            result.executed_tilt_deg = max(result.executed_tilt_deg, round(float(executed), 2))
         if self.frames is not None and s.frame_every and self.step % s.frame_every == 0:
             self.frames.append(world.render(480, 360))
 

@@ -179,7 +179,8 @@ def main(argv=None, prog: str = PROG) -> int:
     if "execution" in report:
         ex = report["execution"]
         print(f"execution: {'success' if ex['success'] else 'failure'} ({ex['reason']}); "
-              f"{ex['fraction_in_bowl']:.0%} in the bowl, {ex['n_replans']} replans")
+              f"{ex['fraction_in_bowl']:.0%} in the bowl, {ex['n_replans']} replans; the tool tilted "
+              f"{ex['executed_tilt_deg']:.0f} deg at most (commanded {ex['planned_tilt_deg']:.0f})")
     import numpy as np
     stem = out / f"plan_scenario{args.scenario_seed}"
     np.savez(stem.with_suffix(".npz"), configurations=res.configurations, time_steps=res.time_steps,

@@ -62,11 +62,25 @@ def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 
         "initial_ms": _stats(init), "replan_ms": _stats(rep),
         "build_ms": _stats(build), "reaction_ms": _stats(react), "improve_ms": _stats(improve),
         "latency_mode": sorted({r.get("latency", "none") for r in runs}),
+        **_tilt_stats(runs),
         "tracking_max_mm": max([r["tracking_max_mm"] for r in runs if "tracking_max_mm" in r], default=math.nan),
         "scenarios": [{"scenario": r["scenario"], "demo_seed": r.get("demo_seed", 0), "success": r["success"],
                        "reason": r["reason"], "fraction_in_bowl": r["fraction_in_bowl"]}
                       for r in sorted(runs, key=lambda r: (r.get("demo_seed", 0), r["scenario"]))],
     }
+
+
+def _tilt_stats(runs: list[dict]) -> dict:
+    """The tool's largest tilt against the demonstrations' mean (``sim.attitude``), over the runs
+    that have it: ``tilt_error_deg`` and ``planned_tilt_error_deg`` as ``{median, p95}`` of the
+    absolute error in degrees (what was reached, what was commanded), ``tilt_bias_deg`` the
+    median signed error (negative: tilted less than the demonstrator)."""
+    def errors(key):
+        return [r[key] for r in runs if r.get(key) is not None and math.isfinite(r[key])]
+
+    executed, planned = errors("tilt_error_deg"), errors("planned_tilt_error_deg")
+    return {"tilt_error_deg": _stats(np.abs(executed)), "planned_tilt_error_deg": _stats(np.abs(planned)),
+            "tilt_bias_deg": _pct(executed, 50)}
 
 
 def spread(cells: list[dict]) -> dict:
@@ -103,6 +117,14 @@ def _ms(stats: dict | None) -> str:
     return "-" if x is None or math.isnan(x) else f"{x:.0f}ms"
 
 
+def _deg(stats: dict | None) -> str:
+    """``{median, p95}`` in degrees as 'median / p95', '-' when missing or NaN."""
+    m, p = ((stats or {}).get(k) for k in ("median", "p95"))
+    if m is None or p is None or math.isnan(m) or math.isnan(p):
+        return "-"
+    return f"{m:.0f} / {p:.0f} deg"
+
+
 def _success(v: dict, s: dict | None) -> str:
     """A variant's success: its rate, or over several cells their mean ± standard deviation."""
     if s and s.get("cells", 0) > 1:
@@ -116,7 +138,7 @@ def format_table(results: dict, task: str, latency: str | None = None, cells: di
     evaluation's latency mode, named under the table; ``cells``: a sweep's ``spread``, whose
     mean ± sd over cells then stands in the success column."""
     head = f"{'Tool landmark':<14} {'Environment landmark':<21} {'Success':>11} {'Paper':>6} {'Learning':>9} " \
-           f"{'Plan (init)':>12} {'Replan':>9} {'Reaction':>9}"
+           f"{'Plan (init)':>12} {'Replan':>9} {'Reaction':>9} {'Tilt error':>12}"
     n = max((v['n_scenarios'] for v in results.values()), default=0)
     n_cells = max((s.get("cells", 0) for s in (cells or {}).values()), default=1)
     what = f"{n} runs over {n_cells} cells (scenario sets x demonstration draws)" if n_cells > 1 else f"{n} scenarios"
@@ -126,10 +148,11 @@ def format_table(results: dict, task: str, latency: str | None = None, cells: di
         p = f"{paper[name]:.0%}" if name in paper else "-"
         lines.append(f"{v['tool_landmark']:<14} {v['env_landmark']:<21} {_success(v, (cells or {}).get(name)):>11} "
                      f"{p:>6} {v['learning_time_s']:>8.1f}s {_ms(v['initial_ms']):>12} {_ms(v['replan_ms']):>9} "
-                     f"{_ms(v.get('reaction_ms')):>9}")
+                     f"{_ms(v.get('reaction_ms')):>9} {_deg(v.get('tilt_error_deg')):>12}")
     lines.append("Plan and Replan: the search alone (the paper's latency); Reaction: a re-plan with the "
                  "landmark update before it (or the roadmap's growth, for the anytime re-plan after a far move); "
-                 f"the paper: {PAPER_LATENCY_MS.get(task, '-')} ms on 12 cores, over 10 scenarios")
+                 f"the paper: {PAPER_LATENCY_MS.get(task, '-')} ms on 12 cores, over 10 scenarios; Tilt error: the "
+                 "tool's largest tilt against the demonstrations' mean, |median| / p95 in degrees")
     crashed = sum(v.get("crashed", 0) for v in results.values())
     if crashed:
         lines.append(f"{crashed} run(s) crashed twice and are not counted: their errors are in runs.jsonl")

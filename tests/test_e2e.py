@@ -51,6 +51,9 @@ def test_pipeline_plans_and_replans(model_dir, free_run):
     """Fast: the whole pipeline runs and the closed loop reacts to a moved bowl."""
     assert free_run["plan_statuses"][0] == "ok", free_run["reason"]
     assert len(free_run["task_point_path"]) > 10
+    # the tool's attitude is recorded: the spoon was turned over to dump, and tracked as commanded
+    assert free_run["executed_tilt_deg"] > 60, free_run["executed_tilt_deg"]
+    assert abs(free_run["planned_tilt_deg"] - free_run["executed_tilt_deg"]) < 5
     after = (BOWL[0] - 0.25, BOWL[1] + 0.2)
     r = run_one("powder", _scenario(BOWL, bowl_after=after), LEARNED, str(model_dir), ROADMAP)
     assert r["n_replans"] >= 1 and len(r["replan_ms"]) == r["n_replans"]

@@ -257,7 +257,23 @@ def test_summary_reaction_times_only_from_timed_runs():
     only_old = report.summarize([old], v, 1.0)
     assert math.isnan(only_old["reaction_ms"]["median"]) and math.isnan(only_old["build_ms"]["median"])
     table = report.format_table({v.name: s, "old": only_old}, TASK)
-    assert "24ms" in table and table.splitlines()[-2].split()[-1] == "-"
+    assert "24ms" in table and table.splitlines()[-2].split()[-2:] == ["-", "-"]  # no reaction, no tilt
+
+
+def test_summary_tilt_error_against_the_demonstrations():
+    """``tilt_error_deg`` (the tool's largest tilt minus the demonstrations' mean, per run) is
+    summarized as the median and p95 of its absolute value, its sign as ``tilt_bias_deg``; runs
+    without it (no demonstrations to compare with) are left out."""
+    v = next(x for x in ev.VARIANTS if x.name == "learned+learned")
+    errs = [-12.0, -8.0, -4.0, 2.0]
+    rows = [{**_row(v.name, i), "tilt_error_deg": e, "planned_tilt_error_deg": e - 1.0} for i, e in enumerate(errs)]
+    rows.append({**_row(v.name, 9), "tilt_error_deg": math.nan})
+    s = report.summarize(rows, v, 1.0)
+    assert s["tilt_error_deg"]["median"] == pytest.approx(6.0)  # |.| = 2, 4, 8, 12
+    assert s["tilt_error_deg"]["p95"] == pytest.approx(8 + 0.85 * 4)
+    assert s["planned_tilt_error_deg"]["median"] == pytest.approx(7.0)  # 1, 5, 9, 13
+    assert s["tilt_bias_deg"] == pytest.approx(-6.0)
+    assert "6 / 11 deg" in report.format_table({v.name: s}, TASK)
 
 
 def test_missing_model_is_trained_with_the_learning_seed_not_the_scenario_seed(tmp_path, monkeypatch):

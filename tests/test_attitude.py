@@ -1,0 +1,57 @@
+"""The tool's tilt (sim.attitude): the demonstrator's roll read back from rotations, from the
+learned kinematics against PyBullet's, and from recorded demonstrations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lfd.robot.kinematics import KinematicModel
+from sim.attitude import demo_tilt, tool_tilt_deg
+from sim.demo_paths import tool_rotation
+
+
+def test_tilt_is_the_roll_of_a_level_tool():
+    """For the demonstrator's tool frames ``R_level(yaw) R_x(0) R_z(roll)`` the tilt is the roll,
+    whatever the facing; a few degrees of pitch change it by at most the pitch."""
+    rng = np.random.default_rng(0)
+    yaw, roll = rng.uniform(-np.pi, np.pi, 50), rng.uniform(0, np.pi, 50)
+    np.testing.assert_allclose(tool_tilt_deg(tool_rotation(yaw, np.zeros(50), roll)), np.degrees(roll), atol=1e-9)
+    pitch = np.radians(rng.uniform(-8, 8, 50))
+    assert np.all(np.abs(tool_tilt_deg(tool_rotation(yaw, pitch, roll)) - np.degrees(roll)) <= 8 + 1e-9)
+    with pytest.raises(ValueError, match="3, 3"):
+        tool_tilt_deg(np.eye(4))
+
+
+def test_tilt_from_the_kinematics_equals_pybullets():
+    """The executor's tilt (lfd's forward kinematics of the joints) is the tilt of PyBullet's own
+    tool frame, within 0.01 deg, over random configurations."""
+    from sim.world import World
+
+    kin = KinematicModel.from_spec(dtype=torch.float64)
+    Q = kin.sample_uniform(20, generator=torch.Generator().manual_seed(0)).numpy()
+    with World("powder", n_particles=0) as world:
+        ours, theirs = [], []
+        for q in Q:
+            world.set_q(q)
+            theirs.append(tool_tilt_deg(world.T_world_tool()[:3, :3]))
+            ours.append(tool_tilt_deg(kin.fk(torch.as_tensor(q))[:3, :3].numpy()))
+    np.testing.assert_allclose(ours, theirs, atol=1e-2)
+    assert np.ptp(theirs) > 60  # the configurations tilt the tool in many ways
+
+
+def test_demo_tilt_reads_the_demonstrators_roll(tmp_path):
+    """Demonstrations drawn with a nominal roll: each one's largest tilt, by forward kinematics of
+    its recorded joints, is the roll it held (within the demonstrator's spread and a few degrees of
+    pitch and tracking); an empty folder gives NaN."""
+    from sim.demo_paths import ROLL_SPREAD
+    from sim.demos import generate
+
+    generate("powder", tmp_path, n=2, seed=4, progress=False, roll_deg=100.0)
+    t = demo_tilt(tmp_path)
+    assert len(t["per_demo"]) == 2 and t["mean"] == pytest.approx(np.mean(t["per_demo"]))
+    assert all(abs(x - 100.0) <= ROLL_SPREAD["powder"] + 10.0 for x in t["per_demo"]), t
+    assert math.isnan(demo_tilt(tmp_path / "none")["mean"])
