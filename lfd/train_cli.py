@@ -285,6 +285,10 @@ def _summary(result, ds, cfg, n_obs: int) -> dict:
             summary["tool_point_error_m"] = float(np.linalg.norm(np.asarray(gt["tool_point"]) - m.tool.cpu().numpy()))
         if "bowl_landmark" in gt:
             summary["bowl_weight"] = result.env_before_pruning.get(gt["bowl_landmark"])
+        if gt.get("reference_points"):
+            summary["reference_point_distances_m"] = {
+                name: float(np.linalg.norm(np.asarray(p) - m.tool.cpu().numpy()))
+                for name, p in gt["reference_points"].items()}
     return summary
 
 
@@ -379,6 +383,11 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
         atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     print(f"learned in {summary['learning_time_s']:.1f}s: tool {np.round(m.tool.cpu().numpy(), 4).tolist()}, "
           f"env {summary['env_weights']}; wrote {out}", flush=True)
+    if "tool_point_error_m" in summary:
+        print(f"  the tool point is {summary['tool_point_error_m'] * 100:.1f} cm from the demonstrator's hidden "
+              "task point", flush=True)
+    for name, dist in summary.get("reference_point_distances_m", {}).items():
+        print(f"  the tool point is {dist * 100:.1f} cm from the demonstrations' {name}", flush=True)
     for w in result.warnings[shown[0]:]:
         print(f"warning: {w}", file=sys.stderr)
     return 0

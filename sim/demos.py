@@ -225,6 +225,23 @@ def replay(world, q: np.ndarray, dt: float, settle: float = 0.3, hold: float = 0
     return world.fraction_in_bowl(), sorted(set(hits))
 
 
+AIM_POINT = "aim (the gripper-frame point over the bowl's centre, at its rim, when most tilted)"
+
+
+def _aim_point(kin: KinematicModel, q: np.ndarray, bowl_xy) -> np.ndarray:
+    """``(3,)`` the gripper-frame point that sat over the bowl's centre, at its rim's height, when the
+    demonstration ``q (S, 7)`` tilted the tool most (``sim.attitude``): where the demonstrator aimed
+    the powder or the stream, as the gripper carried it (the pour's stream leaves the spout ahead
+    of it, so this is not the spout)."""
+    from sim.attitude import tool_tilt_deg
+
+    with torch.no_grad():
+        T = kin.fk(torch.as_tensor(q, dtype=kin.dtype)).numpy()  # (S, 4, 4)
+    i = int(np.argmax(tool_tilt_deg(T[:, :3, :3])))
+    p_world = np.array([bowl_xy[0], bowl_xy[1], L.TABLE_TOP_Z + L.BOWL_HEIGHT])
+    return T[i, :3, :3].T @ (p_world - T[i, :3, 3])
+
+
 def _draw_one(world, kin, fns, task, bowl_xy, tool_point, dt, rng, roll_deg=None) -> DemoAttempt:
     path = draw_path(task, bowl_xy, _start_pose(kin, tool_point), dt, rng, tool_point=tool_point,
                      roll_deg=roll_deg)
@@ -262,7 +279,8 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
     """Generate ``n`` demonstrations of ``task`` into ``out_dir``; returns the ``.npz`` paths.
 
     Writes ``demo_000.npz`` ... (``lfd.learning.demos`` format), ``task.json`` and ``ground_truth.json``
-    (``tool_point``, ``bowl_landmark``, ``task``, plus the bowl positions and durations).
+    (``tool_point``, ``bowl_landmark``, ``task``, ``reference_points`` (the aim over the bowl, ``_aim_point``),
+    the demonstrator's ``roll_deg``, plus the bowl positions and durations).
     ``task_point``: (3,) metres in the gripper frame, default ``TASK_POINTS[task]``.
     ``keep_attempts``: a list that receives the kept ``DemoAttempt`` objects (for tests/plots).
     ``placement``: how the bowls are spread over the square (``bowl_positions``); None: the
@@ -301,7 +319,7 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
     all_bowls = bowl_positions(n, rng, placement) if placement == "stratified" else None  # (n, 2)
     kin = KinematicModel.from_spec(BAXTER_LEFT, dtype=torch.float64)
     torch.set_num_threads(1)
-    paths, bowls, durations, attempts_used = [], [], [], []
+    paths, bowls, durations, attempts_used, aims = [], [], [], [], []
     t_all = time.time()
     with World(task) as world:
         fns = {"static": make_collision_fns(world, obstacles=False),
@@ -324,6 +342,7 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
             paths.append(save_demonstration(out_dir / f"demo_{i:03d}.npz", demo, BAXTER_LEFT.joint_names,
                                             names, BAXTER_LEFT))
             bowls.append([float(v) for v in a.path.bowl_xy])
+            aims.append(_aim_point(kin, a.q, a.path.bowl_xy))
             durations.append(a.path.duration)
             attempts_used.append(attempt)
             if keep_attempts is not None:
@@ -336,7 +355,8 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
     truth = {"tool_point": tool_point.tolist(), "bowl_landmark": "bowl", "task": task,
              "bowl_xy": bowls, "durations": durations, "attempts": attempts_used, "seed": int(seed),
              "placement": placement,
-             "roll_deg": DUMP_NOMINAL[task][1] if roll_deg is None else roll_deg}
+             "roll_deg": DUMP_NOMINAL[task][1] if roll_deg is None else roll_deg,
+             "reference_points": {AIM_POINT: np.mean(aims, axis=0).round(5).tolist()}}
     (out_dir / "ground_truth.json").write_text(json.dumps(truth, indent=2) + "\n")
     if progress:
         print(f"{n} {task} demonstrations in {out_dir} ({time.time() - t_all:.0f} s)", flush=True)

@@ -91,6 +91,8 @@ def test_task_spec_round_trip_and_numpy_numbers():
     ({"tool_point": [1, 2]}, "'tool_point' needs 3 finite numbers"),
     ({"tool_point": "abc"}, "'tool_point' needs 3 finite numbers"),
     ({"bowl_landmark": ["x"]}, "'bowl_landmark' must be a landmark's name"),
+    ({"reference_points": [[0, 0, 0]]}, "'reference_points' must be an object"),
+    ({"reference_points": {"aim": [0, 0]}}, "reference point 'aim' needs 3 finite numbers"),
 ])
 def test_ground_truth_is_checked_before_any_fit(good_dir, kin, gt, fragment):
     """train.py reads it after the whole fit: a bad one used to crash there and lose the model."""

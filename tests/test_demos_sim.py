@@ -237,3 +237,23 @@ def test_a_demonstrator_who_tilts_less():
     np.testing.assert_allclose(default - less, 10.0, atol=1e-9)  # the same draws, shifted by 115 - 105
     with pytest.raises(ValueError, match="roll"):
         draw_path("pour", (0.8, 0.3), np.array([0.6, 0.5, 0.0, 0.0]), 0.1, np.random.default_rng(0), roll_deg=30.0)
+
+
+def test_ground_truth_names_where_the_demonstrator_aimed(powder, kin):
+    """``reference_points`` holds the aim: the gripper-frame point that sat over the bowl's centre,
+    at its rim, when each demonstration tilted most (mean over them). For the powder it lies
+    below the scoop (the task point) by about the dumping height above the rim (4-7 cm, the spoon
+    turned over), and carried by each demonstration's gripper at that moment it lands on the
+    bowl's centre."""
+    from sim.attitude import tool_tilt_deg
+    from sim.demos import AIM_POINT
+
+    out, _, kept = powder
+    aim = np.array(json.loads((out / "ground_truth.json").read_text())["reference_points"][AIM_POINT])
+    assert 0.02 < np.linalg.norm(aim - np.array(TASK_POINTS["powder"])) < 0.10
+    for a in kept:
+        T = kin.fk(torch.as_tensor(a.q)).numpy()
+        i = int(np.argmax(tool_tilt_deg(T[:, :3, :3])))
+        p = T[i, :3, :3] @ aim + T[i, :3, 3]
+        rim = np.r_[a.path.bowl_xy, L.TABLE_TOP_Z + L.BOWL_HEIGHT]
+        assert np.linalg.norm(p - rim) < 0.03  # the mean of two demonstrations' aims

@@ -491,3 +491,27 @@ def test_a_users_own_task_trains_and_plans_without_the_simulator(tmp_path, capsy
                             "demonstrations of task 'reach', not 'powder'")):
         bad = run_cli(main, "lfd-train", argv, capsys)
         assert bad.returncode == 2 and fragment in bad.stderr and bad.stderr.count("\n") == 1, bad.stderr
+
+
+def test_summary_names_the_distance_to_each_reference_point(synth_dir, tmp_path, capsys):
+    """``ground_truth.json``'s ``reference_points`` (e.g. where the demonstrator aimed) are
+    evaluation only: the summary gives the learned tool point's distance to each, and to the
+    hidden task point, and prints them."""
+    import shutil
+    demos = tmp_path / "demos"
+    shutil.copytree(synth_dir, demos)
+    gt = json.loads((demos / "ground_truth.json").read_text()) if (demos / "ground_truth.json").is_file() else {}
+    gt.setdefault("tool_point", [0.0, 0.0, 0.15])
+    gt["reference_points"] = {"aim": [0.0, 0.0, 0.3], "handle": [0.0, 0.0, 0.0]}
+    (demos / "ground_truth.json").write_text(json.dumps(gt))
+    out = tmp_path / "out"
+    assert _train_main(["--task", "powder", "--demos", str(demos), "--out", str(out), "--restarts", "1",
+                        "--time-steps", "5"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    tool = np.array(summary["tool_point"])
+    dist = summary["reference_point_distances_m"]
+    assert dist == pytest.approx({"aim": float(np.linalg.norm(tool - [0, 0, 0.3])),
+                                  "handle": float(np.linalg.norm(tool))})
+    printed = capsys.readouterr().out
+    assert f"{dist['aim'] * 100:.1f} cm from the demonstrations' aim" in printed
+    assert "cm from the demonstrator's hidden task point" in printed

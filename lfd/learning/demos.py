@@ -256,8 +256,10 @@ def _check_one(path: Path, raw: dict) -> tuple[Demonstration, tuple, tuple, Robo
 
 
 def _read_ground_truth(path: Path) -> dict:
-    """``ground_truth.json``: a JSON object; ``tool_point`` (3 finite numbers) and
-    ``bowl_landmark`` (a name), when present, are checked here, before any fit reads them."""
+    """``ground_truth.json``: a JSON object; ``tool_point`` (3 finite numbers), ``bowl_landmark``
+    (a name) and ``reference_points`` (an object of named gripper-frame points, e.g. where the
+    demonstrator aimed; ``lfd-train`` reports the learned tool point's distance to each), when
+    present, are checked here, before any fit reads them."""
     try:
         gt = json.loads(path.read_text())
     except (ValueError, RecursionError) as e:
@@ -267,6 +269,14 @@ def _read_ground_truth(path: Path) -> dict:
     if "tool_point" in gt:
         try:
             check_point(gt["tool_point"], "'tool_point'")
+        except ValueError as e:
+            raise DemoFormatError(f"{path}: {e}") from e
+    refs = gt.get("reference_points", {})
+    if not isinstance(refs, dict):
+        raise DemoFormatError(f"{path}: 'reference_points' must be an object of named points, got {type(refs).__name__}")
+    for name, point in refs.items():
+        try:
+            check_point(point, f"reference point {name!r}")
         except ValueError as e:
             raise DemoFormatError(f"{path}: {e}") from e
     if "bowl_landmark" in gt and not isinstance(gt["bowl_landmark"], str):
