@@ -130,7 +130,7 @@ def test_bowl_is_kept_through_rejected_attempts(tmp_path, monkeypatch, task, ask
 
     seen = []
 
-    def fake(world, kin, fns, task, bowl_xy, tool_point, dt, rng):  # draws nothing from rng
+    def fake(world, kin, fns, task, bowl_xy, tool_point, dt, rng, roll_deg=None):  # draws nothing from rng
         seen.append(tuple(bowl_xy))
         path = draw_path(task, bowl_xy, np.r_[0.7, 0.8, 0.0, 0.3], dt, np.random.default_rng(99))
         fail = "test rejection" if len(seen) % 3 else ""

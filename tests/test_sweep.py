@@ -131,7 +131,7 @@ def test_crashed_runs_are_logged_counted_apart_and_run_again_on_resume(tmp_path,
     v = payload["variants"]["learned+learned"]
     assert v["n_scenarios"] == 9 and v["crashed"] == 1
     assert "1 run(s) crashed twice" in format_table(payload["variants"], TASK)
-    errors = [json.loads(x) for x in (out / "runs.jsonl").read_text().splitlines() if "error" in x]
+    errors = [r for r in map(json.loads, (out / "runs.jsonl").read_text().splitlines()) if "error" in r]
     assert len(errors) == 1 and errors[0]["scenario"] == bad and errors[0]["attempts"] == 2
     with pytest.raises(UsageError, match="pass --resume"):
         ev.evaluate(_settings(), out, models)  # a logged folder is not overwritten or mixed
