@@ -42,6 +42,7 @@ from lfd.robot.ik import IKConfig, solve_ik
 from lfd.robot.kinematics import KinematicModel
 from lfd.robot.robots import BAXTER_LEFT
 from sim import layout as L
+from sim.attitude import tool_tilt_deg
 from sim.demo_paths import DUMP_NOMINAL, TASK_POINTS, DemoPath, check_roll, draw_path
 
 __all__ = [
@@ -225,7 +226,7 @@ def replay(world, q: np.ndarray, dt: float, settle: float = 0.3, hold: float = 0
     return world.fraction_in_bowl(), sorted(set(hits))
 
 
-AIM_POINT = "aim (the gripper-frame point over the bowl's centre, at its rim, when most tilted)"
+AIM_POINT = "aim over the bowl"  # ground_truth.json reference point: see _aim_point
 
 
 def _aim_point(kin: KinematicModel, q: np.ndarray, bowl_xy) -> np.ndarray:
@@ -233,8 +234,6 @@ def _aim_point(kin: KinematicModel, q: np.ndarray, bowl_xy) -> np.ndarray:
     demonstration ``q (S, 7)`` tilted the tool most (``sim.attitude``): where the demonstrator aimed
     the powder or the stream, as the gripper carried it (the pour's stream leaves the spout ahead
     of it, so this is not the spout)."""
-    from sim.attitude import tool_tilt_deg
-
     with torch.no_grad():
         T = kin.fk(torch.as_tensor(q, dtype=kin.dtype)).numpy()  # (S, 4, 4)
     i = int(np.argmax(tool_tilt_deg(T[:, :3, :3])))

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from lfd.cli import USER_ERRORS, UsageError, error_line
-from lfd.train_cli import ensure_demos
+from lfd.train_cli import default_demos, ensure_demos
 from lfd.train_cli import main as train_main
 from sim.attitude import demo_tilt
 from sim.latency import parse_latency
@@ -267,7 +267,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
             summary = ensure_model(settings.task, models, demos, v, demo_seed=k) / "summary.json"
             learn_s[v.name, k] = json.loads(summary.read_text()).get("learning_time_s", math.nan) \
                 if summary.is_file() else math.nan
-        tilt[k] = demo_tilt(demos_for(settings.task, demos, k) or Path("runs") / "demos" / settings.task)["mean"]
+        tilt[k] = demo_tilt(demos_for(settings.task, demos, k) or default_demos(settings.task))["mean"]
     sets = {S: draw_scenarios(settings.task, settings.n_scenarios, S) for S in settings.seeds}
     wanted = {(v.name, k, sc.seed) for v in variants for k in settings.demo_seeds for scs in sets.values() for sc in scs}
     base_of = {sc.seed: S for S, scs in sets.items() for sc in scs}
