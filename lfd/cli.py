@@ -147,9 +147,16 @@ def check_device(text: str) -> str:
     try:
         torch.device(text)
     except (RuntimeError, ValueError, TypeError) as e:
-        why = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise UsageError(f"--device {text!r} is not a torch device string, e.g. cpu, cuda, cuda:1, mps "
-                         f"(torch.device: {why})") from None
+                         f"(torch.device: {error_line(e)})") from None
+    return text
+
+
+def check_task_name(text: str) -> str:
+    """``text`` if it can name a task (``lfd.learning.tasks.TASK_NAME``), else a ``UsageError``."""
+    from lfd.learning.tasks import TASK_NAME
+    if not TASK_NAME.fullmatch(text):
+        raise UsageError(f"--task must be a name of letters, digits, '_' and '-', got {text!r}")
     return text
 
 
@@ -162,5 +169,4 @@ def check_device_available(text: str) -> None:
     try:
         torch.zeros(1, device=dev) + 1
     except (RuntimeError, AssertionError, ValueError) as e:
-        why = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise UsageError(f"--device {text}: this machine's torch cannot use it ({why})") from None
+        raise UsageError(f"--device {text}: this machine's torch cannot use it ({error_line(e)})") from None

@@ -35,8 +35,16 @@ from pathlib import Path
 
 import numpy as np
 
-from lfd.cli import ArgumentParser, UsageError, check_device, check_device_available, run_main, writable_dir
-from lfd.learning.tasks import TASK_NAME, TASKS
+from lfd.cli import (
+    ArgumentParser,
+    UsageError,
+    check_device,
+    check_device_available,
+    check_task_name,
+    run_main,
+    writable_dir,
+)
+from lfd.learning.tasks import TASKS
 from lfd.train_log import Logger
 
 __all__ = [
@@ -140,8 +148,7 @@ def parse_args(argv=None, prog: str = PROG):
     if args.time_steps is not None and args.time_steps < 2:
         raise UsageError(f"--time-steps must be at least 2, got {args.time_steps}")
     check_device(args.device)
-    if not TASK_NAME.fullmatch(args.task):
-        raise UsageError(f"--task must be a name of letters, digits, '_' and '-', got {args.task!r}")
+    check_task_name(args.task)
     if args.demos is None and args.task not in BUILT_IN_TASKS:
         raise UsageError(f"--task {args.task}: give --demos DIR with its demonstrations (they are generated only "
                          f"for the built-in tasks {', '.join(BUILT_IN_TASKS)})")

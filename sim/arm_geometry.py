@@ -27,12 +27,12 @@ ALWAYS_TOUCHING = frozenset(frozenset(pair) for pair in (
     ("left_upper_forearm", "left_upper_elbow_visual"),
 ))
 def _tree(client, robot):
-    """Parent link and joint type of each link index, link names."""
-    parent, jtype, names = {}, {}, {-1: "base"}
+    """Parent link of each link index, link names."""
+    parent, names = {}, {-1: "base"}
     for j in range(p.getNumJoints(robot, physicsClientId=client)):
         info = p.getJointInfo(robot, j, physicsClientId=client)
-        parent[j], jtype[j], names[j] = info[16], info[2], info[12].decode()
-    return parent, jtype, names
+        parent[j], names[j] = info[16], info[12].decode()
+    return parent, names
 
 
 def _arm_joints_between(a, b, parent, arm_joints):
@@ -51,7 +51,7 @@ def _arm_joints_between(a, b, parent, arm_joints):
 
 def self_pairs(client, robot, joints):
     """Moving links with shapes, robot links with shapes, and the (moving, other) pairs to check."""
-    parent, _, names = _tree(client, robot)
+    parent, names = _tree(client, robot)
     has_shape = [k for k in parent if p.getCollisionShapeData(robot, k, physicsClientId=client)]
 
     def moves(k):

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-__all__ = ["demo_tilt", "tool_tilt_deg"]
+__all__ = ["demo_tilt", "tilts_of", "tool_tilt_deg"]
 
 
 def tool_tilt_deg(R_world_tool) -> np.ndarray:
@@ -26,6 +26,14 @@ def tool_tilt_deg(R_world_tool) -> np.ndarray:
     if R.shape[-2:] != (3, 3):
         raise ValueError(f"Expected rotations of shape (..., 3, 3), got {R.shape}")
     return np.degrees(np.arccos(np.clip(R[..., 2, 1], -1.0, 1.0)))
+
+
+def tilts_of(kin, Q) -> tuple[np.ndarray, np.ndarray]:
+    """Joint configurations ``Q (S, d)`` -> ``(T_world_ee (S, 4, 4), tilt (S,) deg)`` by ``kin``'s
+    forward kinematics (an ``lfd.robot.kinematics.KinematicModel``; the tool frame is its end link)."""
+    with torch.no_grad():
+        T = kin.fk(torch.as_tensor(np.asarray(Q), dtype=kin.dtype, device=kin.device)).cpu().numpy()
+    return T, tool_tilt_deg(T[:, :3, :3])
 
 
 def demo_tilt(demo_dir: str | Path) -> dict:
@@ -39,9 +47,5 @@ def demo_tilt(demo_dir: str | Path) -> dict:
         return {"mean": math.nan, "per_demo": []}
     ds = load_demos(demo_dir)
     kin = KinematicModel.from_spec(ds.robot, dtype=torch.float64)
-    per_demo = []
-    with torch.no_grad():
-        for d in ds.demos:
-            R = kin.fk(torch.as_tensor(d.q, dtype=torch.float64))[:, :3, :3].numpy()  # (S, 3, 3)
-            per_demo.append(float(tool_tilt_deg(R).max()))
+    per_demo = [float(tilts_of(kin, d.q)[1].max()) for d in ds.demos]
     return {"mean": float(np.mean(per_demo)), "per_demo": per_demo}

@@ -42,7 +42,7 @@ from lfd.robot.ik import IKConfig, solve_ik
 from lfd.robot.kinematics import KinematicModel
 from lfd.robot.robots import BAXTER_LEFT
 from sim import layout as L
-from sim.attitude import tool_tilt_deg
+from sim.attitude import tilts_of
 from sim.demo_paths import DUMP_NOMINAL, TASK_POINTS, DemoPath, check_roll, draw_path
 
 __all__ = [
@@ -234,9 +234,8 @@ def _aim_point(kin: KinematicModel, q: np.ndarray, bowl_xy) -> np.ndarray:
     demonstration ``q (S, 7)`` tilted the tool most (``sim.attitude``): where the demonstrator aimed
     the powder or the stream, as the gripper carried it (the pour's stream leaves the spout ahead
     of it, so this is not the spout)."""
-    with torch.no_grad():
-        T = kin.fk(torch.as_tensor(q, dtype=kin.dtype)).numpy()  # (S, 4, 4)
-    i = int(np.argmax(tool_tilt_deg(T[:, :3, :3])))
+    T, tilt = tilts_of(kin, q)  # (S, 4, 4), (S,)
+    i = int(np.argmax(tilt))
     p_world = np.array([bowl_xy[0], bowl_xy[1], L.TABLE_TOP_Z + L.BOWL_HEIGHT])
     return T[i, :3, :3].T @ (p_world - T[i, :3, 3])
 

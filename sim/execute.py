@@ -42,11 +42,10 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import pybullet as p
-import torch
 
 from lfd.timing import PROFILES, plan_segments, step_clock
 from sim import layout as L
-from sim.attitude import tool_tilt_deg
+from sim.attitude import tilts_of
 from sim.follow import PlanFollower
 from sim.latency import charged_s, parse_latency
 
@@ -183,13 +182,6 @@ def _tracking_error(planner, q_cmd: np.ndarray, q_act: np.ndarray) -> float:
     return float(np.linalg.norm(P[0] - P[1], axis=-1).max())
 
 
-def _tilts(kin, q_cmd: np.ndarray, q_act: np.ndarray) -> np.ndarray:
-    """``(2,)`` the tool's tilt (deg, ``sim.attitude``) at the commanded and the actual configuration."""
-    with torch.no_grad():
-        T = kin.fk(torch.as_tensor(np.stack([q_cmd, q_act]), dtype=kin.dtype, device=kin.device))  # (2, 4, 4)
-    return tool_tilt_deg(T[:, :3, :3].cpu().numpy())
-
-
 def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = None,
                  q_start=None, frames: list | None = None) -> RunResult:
     """Run the task closed-loop in ``world`` with ``planner`` (an ``lfd.planning.task_planner.TaskPlanner``).
@@ -267,7 +259,7 @@ class _ClosedLoop:
             q_act = world.get_q()
             err = _tracking_error(self.planner, self.q_cmd, q_act)
             result.tracking_max_mm = max(result.tracking_max_mm, round(err * 1e3, 2))
-            planned, executed = _tilts(self.planner.model.kin, self.q_cmd, q_act)
+            planned, executed = tilts_of(self.planner.model.kin, np.stack([self.q_cmd, q_act]))[1]
             result.planned_tilt_deg = max(result.planned_tilt_deg, round(float(planned), 2))
             result.executed_tilt_deg = max(result.executed_tilt_deg, round(float(executed), 2))
         if self.frames is not None and s.frame_every and self.step % s.frame_every == 0:

@@ -20,6 +20,7 @@ from pathlib import Path
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
 from sim import require_pybullet
 from sim.scenarios import MAX_BASE_SEED, MAX_SCENARIO_SEED
+from sim.sweep import EXECUTORS
 
 __all__ = ["PROG", "build_parser", "cli", "main", "parse"]
 
@@ -68,7 +69,7 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                          "k > 0 a set the simulator draws with seed k (default: 0)")
     ap.add_argument("--workers", type=int, default=2, metavar="K",
                     help="parallel processes (with --executor ray and no --address: the local Ray's CPUs)")
-    ap.add_argument("--executor", choices=("local", "ray"), default="local",
+    ap.add_argument("--executor", choices=EXECUTORS, default="local",
                     help="where the runs go: local processes, or Ray tasks (pip install 'lfd-landmarks[ray]')")
     ap.add_argument("--address", default=None, metavar="ADDR",
                     help="a running Ray cluster (ray start --head prints it; default: start a local Ray)")

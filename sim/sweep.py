@@ -43,7 +43,7 @@ class Job:
     args: tuple
 
 
-def error_line(e: BaseException) -> str:
+def job_error_line(e: BaseException) -> str:
     """One line for a failed job: the exception's type and the first line of its message."""
     cause = getattr(e, "cause", None)  # a Ray task error carries the task's own exception
     e = cause if isinstance(cause, BaseException) else e
@@ -121,11 +121,7 @@ class RayExecutor:
                     ray.init(num_cpus=num_cpus, **kw)
             except (ConnectionError, RuntimeError, ValueError) as e:
                 where = f"the Ray cluster at {address}" if address else "a local Ray"
-                raise UsageError(f"--executor ray: cannot start or reach {where} ({error_line(e)})") from e
-
-    @property
-    def cpus(self) -> int:
-        return int(self._ray.cluster_resources().get("CPU", 0))
+                raise UsageError(f"--executor ray: cannot start or reach {where} ({job_error_line(e)})") from e
 
     def share(self, obj: Any) -> Any:
         return self._ray.put(obj)
@@ -205,7 +201,7 @@ def run_jobs(fn: Callable, jobs: Iterable[Job], on_result: Callable[[Job, Any, s
         if failures[job.key] <= retries:
             again.append(job)
         else:
-            on_result(job, None, error_line(e))
+            on_result(job, None, job_error_line(e))
 
     try:
         while todo:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lfd.cli import ArgumentParser, UsageError, run_main
+from lfd.cli import ArgumentParser, UsageError, check_task_name, run_main
 
 __all__ = ["PROG", "build_parser", "cli", "main"]
 
@@ -85,11 +85,10 @@ def main(argv=None, prog: str = PROG) -> int:
     """Import the recordings; 0 on success. ``UsageError`` / ``RecordingError`` on bad input."""
     from lfd.io.recordings import JointColumns, import_recordings
     from lfd.learning.demos import load_demos, save_demos
-    from lfd.learning.tasks import TASK_NAME, TaskSpec
+    from lfd.learning.tasks import TaskSpec
 
     args = build_parser(prog).parse_args(argv)
-    if not TASK_NAME.fullmatch(args.task):
-        raise UsageError(f"--task must be a name of letters, digits, '_' and '-', got {args.task!r}")
+    check_task_name(args.task)
     if args.out.exists():
         raise UsageError(f"--out {args.out}: exists already; choose a new folder")
     if not args.rate > 0 or args.time_steps < 2:

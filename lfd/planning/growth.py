@@ -82,8 +82,7 @@ class BiasedGrowth:
     def __init__(self, model: TaskModel, settings: TaskPlannerSettings, generator: torch.Generator, max_vertices: int):
         self.model, self.settings, self._gen, self.max_vertices = model, settings, generator, int(max_vertices)
         d = model.mu.shape[1] - 3
-        sigma = torch.linalg.inv(model.sigma_inv.detach())  # (T, F, F) lower Cholesky of Sigma_t
-        task_sd = torch.linalg.eigvalsh((sigma @ sigma.transpose(-1, -2))[:, d:, d:]).amax(-1).sqrt()  # (T,)
+        task_sd = torch.linalg.eigvalsh(model.covariances.detach()[:, d:, d:]).amax(-1).sqrt()  # (T,)
         self._task_steps = (task_sd <= TASK_STEP_SD).cpu().numpy()  # (T,) bool
         # landmark positions (Z, 3) biased samples were made for, and the time steps whose
         # tool-point targets no sampled execution reached there (the arm cannot: 'unreachable')
