@@ -22,12 +22,12 @@ def plot_plan_features(model, configurations: np.ndarray, time_steps: np.ndarray
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    d = model.n_features - 3
+    task = slice(model.dof, model.dof + 3)  # the tool point's features
     with torch.no_grad():
         f = model.features(torch.as_tensor(configurations, dtype=model.dtype), landmarks=landmarks)
-        f = f.cpu().numpy()[:, d:]
-        mu = model.mu.cpu().numpy()[:, d:]
-        std = torch.sqrt(torch.diagonal(model.covariances, dim1=-2, dim2=-1)).cpu().numpy()[:, d:]
+        f = f.cpu().numpy()[:, task]
+        mu = model.mu.cpu().numpy()[:, task]
+        std = torch.sqrt(torch.diagonal(model.covariances, dim1=-2, dim2=-1)).cpu().numpy()[:, task]
     t = np.arange(len(mu))
     fig, axes = plt.subplots(3, 1, figsize=(7, 7), sharex=True)
     for k, (ax, name) in enumerate(zip(axes, "xyz")):

@@ -113,6 +113,9 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     p.add_argument("--covariance", default=None, choices=("full", "block"),
                    help="per-step covariance: block (joints independent of the task features) or full, "
                         "the paper's (default: block)")
+    p.add_argument("--features", default=None, choices=("paper", "attitude"),  # lfd.learning.model.FEATURE_SETS
+                   help="feature space: the paper's (joint angles, tool point in the virtual landmark frame) or "
+                        "attitude (also the gripper's axes in that frame; docs/DESIGN.md) (default: paper)")
     p.add_argument("--init", default=None, choices=("reference", "random", "linear"),  # lfd.learning.learn.INITS
                    help="restarts' first alignments: DTW onto a reference demonstration (default: reference), "
                         "independent random warps (the paper's) or the uniform time warp")
@@ -127,6 +130,9 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     p.add_argument("--floor-joint", type=float, default=None, metavar="RAD",
                    help="variance floor of the joint features, a standard deviation in radians "
                         "(default: lfd.learning.learn.FitConfig's, 0.001)")
+    p.add_argument("--floor-attitude", type=float, default=None, metavar="X",
+                   help="variance floor of the attitude features (unit vectors' components) with --features "
+                        "attitude (default: lfd.learning.learn.FitConfig's, 0.01)")
     p.add_argument("--tool-radius", type=float, default=None, metavar="M",
                    help="the tool's size: how far from the gripper's origin the learned tool point may lie "
                         "(default: lfd.learning.learn.FitConfig's, 0.5)")
@@ -249,6 +255,7 @@ def _fit_config(args, ds, demos_dir: Path):
     for key, val in (("restarts", args.restarts), ("covariance", args.covariance), ("init", args.init),
                      ("offsets", tuple(args.offsets) if args.offsets else None),
                      ("floor_task", args.floor_task), ("floor_joint", args.floor_joint),
+                     ("features", args.features), ("floor_attitude", args.floor_attitude),
                      ("tool_radius", args.tool_radius)):
         if val is not None:
             kw[key] = val

@@ -70,6 +70,25 @@ def test_features_match_the_paper_definition():
         assert torch.equal(f[n, :7], q[n])
 
 
+def test_attitude_features_are_the_gripper_axes_in_the_virtual_frame():
+    """'attitude': Eq. 2's features, then ``K_virt^-1`` applied to the gripper's x and y axes as
+    directions (no translation), x first."""
+    rng = np.random.default_rng(1)
+    lm, T_ee = _poses(2, rng), _poses(4, rng)
+    q = torch.randn(4, 7, dtype=torch.float64)
+    tool = torch.tensor([0.1, -0.2, 0.3], dtype=torch.float64)
+    env = torch.tensor([0.6, 0.4], dtype=torch.float64)
+    K_inv = virtual_inverse_tensor(env, landmarks_inverse_tensor(lm)[None])[0]
+    f = features_tensor(q, T_ee, tool, K_inv, "attitude")
+    assert f.shape == (4, 16)
+    assert torch.equal(f[:, :10], features_tensor(q, T_ee, tool, K_inv))
+    ref_K = sum(env[i] * torch.linalg.inv(lm[i]) for i in range(2))
+    for n in range(4):
+        for k in range(2):
+            axis = torch.cat([T_ee[n, :3, k], torch.zeros(1, dtype=torch.float64)])
+            assert torch.allclose(f[n, 10 + 3 * k:13 + 3 * k], (ref_K @ axis)[:3], atol=1e-12)
+
+
 def test_features_gradients_match_finite_differences():
     rng = np.random.default_rng(2)
     lm_inv = landmarks_inverse_tensor(_poses(3, rng))[None].expand(5, 3, 4, 4)
@@ -132,7 +151,25 @@ def test_save_load_round_trip(tmp_path):
     lm = torch.eye(4, dtype=torch.float64).expand(2, 4, 4)
     assert torch.allclose(back.step_nll(q, None, lm), m.step_nll(q, None, lm))
     f32 = TaskModel.load(tmp_path, dtype=torch.float32)
-    assert f32.mu.dtype == torch.float32
+    assert f32.mu.dtype == torch.float32 and back.feature_set == "paper"
+
+
+def test_attitude_model_round_trip_and_shape_check(tmp_path):
+    """An 'attitude' model (F = d + 9) saves and loads as one; the paper's shape is refused for it."""
+    m = _model()
+    gen = torch.Generator().manual_seed(6)
+    _, si = _random_sigma_inv(4, 16, gen, torch.float64)
+    mu = torch.randn(4, 16, generator=gen, dtype=torch.float64)
+    att = TaskModel(m.tool, m.env, mu, si, m.log_trans, m.landmark_names, BAXTER_LEFT, feature_set="attitude")
+    assert (att.dof, att.n_task_features) == (7, 9)
+    att.save(tmp_path)
+    back = TaskModel.load(tmp_path)
+    assert back.feature_set == "attitude" and torch.equal(back.mu, mu)
+    q = torch.randn(3, 7, generator=gen, dtype=torch.float64)
+    lm = torch.eye(4, dtype=torch.float64).expand(2, 4, 4)
+    assert torch.allclose(back.step_nll(q, None, lm), att.step_nll(q, None, lm))
+    with pytest.raises(ValueError, match=r"mu must have shape \(4, 10\)"):
+        TaskModel(m.tool, m.env, mu, si, m.log_trans, m.landmark_names, BAXTER_LEFT)
 
 
 def test_load_rejects_foreign_files(tmp_path):

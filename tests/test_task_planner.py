@@ -22,21 +22,26 @@ def kin():
     return KinematicModel.from_spec(dtype=torch.float64)
 
 
-def _model(kin, T=6):
-    """A hand-made model: the tool point rides a line towards the landmark over T steps."""
+def _model(kin, T=6, feature_set="paper"):
+    """A hand-made model: the tool point rides a line towards the landmark over T steps (with
+    the attitude: the gripper's axes held along the world's x and y, loosely)."""
     g = torch.Generator().manual_seed(0)
     q_mid = (kin.lower + kin.upper) / 2
     q_mid = torch.where(torch.isfinite(q_mid), q_mid, torch.zeros_like(q_mid))
-    mu = torch.zeros(T, 10, dtype=torch.float64)
+    F = 10 if feature_set == "paper" else 16
+    mu = torch.zeros(T, F, dtype=torch.float64)
     mu[:, :7] = q_mid + 0.05 * torch.randn(T, 7, generator=g, dtype=torch.float64)
-    mu[:, 7:] = torch.linspace(0.4, 0.1, T, dtype=torch.float64)[:, None] * torch.tensor([1.0, 0.0, 1.0])
-    sigma_inv = torch.diag_embed(torch.cat([torch.full((7,), 1 / 0.8), torch.full((3,), 1 / 0.2)])
-                                 ).to(torch.float64).repeat(T, 1, 1)
+    mu[:, 7:10] = torch.linspace(0.4, 0.1, T, dtype=torch.float64)[:, None] * torch.tensor([1.0, 0.0, 1.0])
+    sd = [0.8] * 7 + [0.2] * 3
+    if feature_set == "attitude":
+        mu[:, 10], mu[:, 14] = 1.0, 1.0
+        sd += [0.5] * 6
+    sigma_inv = torch.diag_embed(1 / torch.tensor(sd, dtype=torch.float64)).repeat(T, 1, 1)
     log_trans = torch.log(torch.tensor([0.5, 0.4, 0.1], dtype=torch.float64)).repeat(T, 1)
     log_trans[-1] = torch.tensor([0.0, -math.inf, -math.inf])
     log_trans[-2, 2] = -math.inf
     return TaskModel(torch.tensor([0.0, 0.0, 0.1], dtype=torch.float64), torch.ones(1, dtype=torch.float64),
-                     mu, sigma_inv, log_trans, ["bowl"], BAXTER_LEFT, kin=kin)
+                     mu, sigma_inv, log_trans, ["bowl"], BAXTER_LEFT, kin=kin, feature_set=feature_set)
 
 
 def test_chain_edges_join_consecutive_valid_samples():
@@ -70,18 +75,19 @@ def _pose(rotvec, position):
     return T
 
 
-def test_step_cost_is_the_models_mahalanobis_term(kin):
+@pytest.mark.parametrize("feature_set", ["paper", "attitude"])
+def test_step_cost_is_the_models_mahalanobis_term(kin, feature_set):
     """The planner's step cost is ``ModelStepCost``: per configuration and step, ``step_nll`` less
     ``s log|Sigma_t|`` (full covariances, s != 1, two rotated landmarks); prepared once, it follows
     the landmarks when they move."""
-    base = _model(kin)
+    base = _model(kin, feature_set=feature_set)
     T, F = base.mu.shape
     g = torch.Generator().manual_seed(5)
     L = torch.tril(0.3 * torch.randn(T, F, F, generator=g, dtype=torch.float64), -1)
     sigma_inv = L + torch.diag_embed(torch.exp(0.5 * torch.randn(T, F, generator=g, dtype=torch.float64)))
     model = TaskModel(torch.tensor([0.02, -0.01, 0.1], dtype=torch.float64),
                       torch.tensor([0.3, 0.7], dtype=torch.float64), base.mu, sigma_inv, base.log_trans,
-                      ["bowl", "cup"], BAXTER_LEFT, logdet_scale=0.6, kin=kin)
+                      ["bowl", "cup"], BAXTER_LEFT, logdet_scale=0.6, kin=kin, feature_set=feature_set)
     planner = TaskPlanner(model, lambda q: False, lambda a, b: False,
                           settings=TaskPlannerSettings(n_vertices=60, seed=0))
     names = ["marker", "cup", "bowl"]
@@ -110,20 +116,22 @@ def test_step_cost_is_the_models_mahalanobis_term(kin):
     torch.testing.assert_close(planner._landmarks, model.select_landmarks(names, moved))
 
 
-@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
-def test_project_to_model_recovers_the_configuration_of_reachable_features(dtype):
+@pytest.mark.parametrize("dtype,feature_set", [(torch.float64, "paper"), (torch.float32, "paper"),
+                                               (torch.float64, "attitude")])
+def test_project_to_model_recovers_the_configuration_of_reachable_features(dtype, feature_set):
     """Features of a known configuration as the target: Gauss-Newton from a perturbed start
-    returns to it (the joint features make the minimum unique), never leaving the limits."""
+    returns to it (the joint features make the minimum unique), never leaving the limits
+    (with the attitude features, their Jacobian must be right for the same convergence)."""
     from lfd.planning.biased import project_to_model
     kin = KinematicModel.from_spec(dtype=dtype)
-    model = _model(KinematicModel.from_spec(dtype=torch.float64)).to(dtype=dtype)
+    model = _model(KinematicModel.from_spec(dtype=torch.float64), feature_set=feature_set).to(dtype=dtype)
     model.kin = kin
     g = torch.Generator().manual_seed(3)
     landmarks = torch.eye(4, dtype=dtype)[None].clone()
     landmarks[0, :3, 3] = torch.tensor([0.7, 0.2, -0.1], dtype=dtype)
     q_true = model.mu[2, :7].detach() + 0.2 * torch.randn(8, 7, generator=g, dtype=dtype)
     q_true = torch.maximum(torch.minimum(q_true, kin.upper - 0.3), kin.lower + 0.3)  # (8, 7)
-    f_true = model.features(q_true, landmarks=landmarks).detach()  # (8, 10)
+    f_true = model.features(q_true, landmarks=landmarks).detach()  # (8, F)
     q0 = q_true + 0.15 * torch.randn(8, 7, generator=g, dtype=dtype)
     q, improved = project_to_model(model, q0, 2, f_true, landmarks, iters=25)
     assert bool(improved.all())

@@ -3,7 +3,8 @@
 ``FitData`` holds everything that does not depend on zeta or eta (forward kinematics computed
 once); ``EMFitter`` runs EM from one initial alignment (one restart of ``fit``). The objective
 and the profiled M-step are described in ``lfd.learning.learn``'s docstring; shapes: ``N`` observations
-of ``M`` demonstrations, ``T`` time steps, ``F = d + 3`` features, ``Z`` landmarks.
+of ``M`` demonstrations, ``T`` time steps, ``F = d + 3`` features (``d + 9`` with the attitude),
+``Z`` landmarks.
 """
 
 from __future__ import annotations
@@ -14,7 +15,14 @@ import numpy as np
 import torch
 
 from lfd.learning.dtw import dtw_align
-from lfd.learning.model import aligned_nll_tensor, landmarks_inverse_tensor, step_nll_tensor
+from lfd.learning.model import (
+    TASK_VECTORS,
+    aligned_nll_tensor,
+    landmarks_inverse_tensor,
+    step_nll_tensor,
+    task_features_tensor,
+    task_vectors_tensor,
+)
 from lfd.learning.priors import estimate_log_trans, floor_prior, volume_prior
 
 __all__ = ["EM_FAILURES", "EMFitter", "FitData"]
@@ -28,7 +36,9 @@ EM_FAILURES = (FloatingPointError, torch.linalg.LinAlgError)
 class FitData:
     """The demonstrations as tensors, and everything that does not depend on zeta or eta."""
 
-    def __init__(self, demoset, kin, dtype, device):
+    def __init__(self, demoset, kin, dtype, device, feature_set: str = "paper"):
+        self.feature_set = feature_set
+        self.n_task = 3 * TASK_VECTORS[feature_set]  # task features after the joint angles
         self.M = len(demoset.demos)
         self.lengths = [d.n_samples for d in demoset.demos]
         self.N = sum(self.lengths)
@@ -65,9 +75,8 @@ class FitData:
     def features(self, tool, w, T_lm_world=None):
         """``f (N, F)`` and the linear parts ``A (R, 3, 3)`` of ``K_virt^-1`` per landmark row."""
         K = torch.einsum("z,rzij->rij", w, self.T_lm_world if T_lm_world is None else T_lm_world)
-        p_world = self.T_world_ee[:, :3, :3] @ tool + self.T_world_ee[:, :3, 3]  # (N, 3)
-        Kn = K[self.lm_row]  # (N, 4, 4)
-        x = torch.einsum("nij,nj->ni", Kn[:, :3, :3], p_world) + Kn[:, :3, 3]
+        x = task_features_tensor(task_vectors_tensor(self.T_world_ee, tool, self.feature_set),
+                                 K[self.lm_row])  # (N, n_task)
         return torch.cat([self.q, x], dim=1), K[:, :3, :3]
 
     def pad(self, per_obs):
@@ -82,10 +91,11 @@ class EMFitter:
         self.data, self.cfg, self.dtype, self.device = data, cfg, dtype, device
         self.T, self.K = cfg.time_steps, len(cfg.offsets)
         d = data.q.shape[1]
-        self.d, self.F = d, d + 3
+        self.d, self.F = d, d + data.n_task
         self.T_lm = data.T_lm_world[:, landmark_idx]  # (R, Z', 4, 4)
         self.Z = len(landmark_idx)
-        self.floor = torch.tensor([cfg.floor_joint] * d + [cfg.floor_task] * 3, dtype=dtype, device=device)
+        self.floor = torch.tensor([cfg.floor_joint] * d + [cfg.floor_task] * 3
+                                  + [cfg.floor_attitude] * (data.n_task - 3), dtype=dtype, device=device)
         self.nu = float(cfg.floor_weight) if cfg.floor_weight is not None else data.N / self.T
         self.s = float(cfg.logdet_scale)
         mask = torch.ones(self.F, self.F, dtype=dtype, device=device)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from lfd.learning.model import COVARIANCES, OFFSETS, TaskModel
+from lfd.learning.model import COVARIANCES, FEATURE_SETS, OFFSETS, TaskModel
 from lfd.learning.tasks import check_stride, check_whole
 
 __all__ = ["DTYPES", "ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitResult", "SolverSettings"]
@@ -86,7 +86,11 @@ class FitConfig:
         (``DemoSet.subsample``; the model's ``task.dt`` becomes ``subsample`` times the
         demonstrations'). The paper's remedy for its 50 Hz pour demonstrations (Sec. VI-B).
     logdet_scale : ``s`` in ``s log|Sigma|`` (1 = maximum likelihood).
-    floor_joint, floor_task : the variance-floor prior's standard deviations (lfd.learning.priors).
+    features : 'paper' (Eq. 2: joint angles and the tool point in the virtual landmark frame) or
+        'attitude' (those and the gripper's x and y axes in that frame; lfd.learning.model).
+    floor_joint, floor_task, floor_attitude : the variance-floor prior's standard deviations
+        (lfd.learning.priors) of the joint angles (rad), the tool point (m) and the axes (unit
+        vectors' components).
     floor_weight : its pseudo-observations ``nu``; None = mean observations per time step.
     volume_prior : add ``-2 log|det A|`` per observation (lfd.learning.priors); zero for aligned frames.
     tool_radius : metres from the gripper's origin the learned tool point may lie (the tool's
@@ -127,6 +131,8 @@ class FitConfig:
     logdet_scale: float = 1.0
     floor_joint: float = 1e-3
     floor_task: float = 1e-3
+    floor_attitude: float = 1e-2
+    features: str = "paper"
     floor_weight: float | None = None
     volume_prior: bool = True
     trans_floor: float = 0.01
@@ -139,7 +145,7 @@ class FitConfig:
 
     def __post_init__(self):
         for name, allowed in (("tool", TOOL_MODES), ("env", ENV_MODES), ("covariance", COVARIANCES),
-                              ("init", INITS), ("dtype", tuple(DTYPES))):
+                              ("init", INITS), ("dtype", tuple(DTYPES)), ("features", FEATURE_SETS)):
             value = getattr(self, name)
             if value not in allowed:
                 raise ValueError(f"FitConfig.{name} must be one of {', '.join(allowed)}; got {value!r}")
@@ -169,9 +175,9 @@ class FitConfig:
         if len(set(self.offsets)) != len(self.offsets) or not {0, 1} <= set(self.offsets):
             raise ValueError(f"FitConfig.offsets must be distinct, non-negative and include 0 and 1 (a "
                              f"sample may stay in its step or move to the next); got {self.offsets}")
-        if not all(math.isfinite(x) and x > 0 for x in (self.floor_joint, self.floor_task)):
-            raise ValueError(f"FitConfig.floor_joint and floor_task must be positive standard deviations, "
-                             f"got {self.floor_joint}, {self.floor_task}")
+        if not all(math.isfinite(x) and x > 0 for x in (self.floor_joint, self.floor_task, self.floor_attitude)):
+            raise ValueError(f"FitConfig.floor_joint, floor_task and floor_attitude must be positive standard "
+                             f"deviations, got {self.floor_joint}, {self.floor_task}, {self.floor_attitude}")
         if not (math.isfinite(self.tool_radius) and self.tool_radius > 0):
             raise ValueError(f"FitConfig.tool_radius must be a positive distance in metres, got {self.tool_radius}")
         if not 0 <= self.prune_threshold < 1:

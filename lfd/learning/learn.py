@@ -306,7 +306,7 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     _check_inputs(demoset, cfg)
     check_learnable(demoset, cfg)
     fixed = _fixed_landmarks(demoset, cfg)
-    data = FitData(demoset, kin, dtype, device)
+    data = FitData(demoset, kin, dtype, device, cfg.features)
     t_fk = time.perf_counter() - t0
     torch.manual_seed(cfg.seed)
 
@@ -343,9 +343,10 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     task = replace(demoset.task, subsample=1) if demoset.task is not None else None  # its stride is spent
     model = TaskModel(tool, w, mu, sigma_inv, log_trans, kept_names, demoset.robot, task,
                       all_landmark_names=names, offsets=cfg.offsets, covariance=cfg.covariance,
-                      logdet_scale=cfg.logdet_scale,
+                      logdet_scale=cfg.logdet_scale, feature_set=cfg.features,
                       options={"tool": cfg.tool, "env": cfg.env, "floor_joint": cfg.floor_joint,
-                               "floor_task": cfg.floor_task, "floor_weight": fitter.nu,
+                               "floor_task": cfg.floor_task, "floor_attitude": cfg.floor_attitude,
+                               "floor_weight": fitter.nu,
                                "volume_prior": cfg.volume_prior, "trans_floor": cfg.trans_floor,
                                "m_step": cfg.solver.m_step, "seed": cfg.seed, "subsample": cfg.subsample})
     total = time.perf_counter() - t0

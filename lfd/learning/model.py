@@ -2,9 +2,16 @@
 
 Notation follows the paper (Sec. III-IV). Conventions written once here:
 
-* ``F = d + 3`` features per configuration (Eq. 2): the ``d`` joint angles, then the tool
-  point ``zeta_tool`` (end-effector frame, metres) expressed in the environmental virtual
-  landmark frame: ``x = K_virt^-1 @ T_world_ee @ [tool; 1]``.
+* ``F = d + 3`` features per configuration (Eq. 2, feature set ``'paper'``): the ``d`` joint
+  angles, then the tool point ``zeta_tool`` (end-effector frame, metres) expressed in the
+  environmental virtual landmark frame: ``x = K_virt^-1 @ T_world_ee @ [tool; 1]``.
+* Feature set ``'attitude'`` (a deviation from the paper, docs/DESIGN.md): ``F = d + 9``, Eq. 2's
+  features followed by the end effector's x and y axes in the same frame,
+  ``A R_world_ee[:, 0]`` and ``A R_world_ee[:, 1]`` (``A`` the linear part of ``K_virt^-1``):
+  the gripper's attitude relative to the environment, which the joint angles give only through
+  the arm's posture. The task features of either set are ``K_virt^-1`` applied to ``k`` world
+  vectors ``P (N, k, 3)`` (``task_vectors_tensor``): the tool point (a point) then the axes
+  (directions, no translation).
 * ``K_virt^-1 = sum_i env_i * inv(T_world_landmark_i)`` (a 4x4 affine map, rigid only when
   the landmark rotations agree); ``sum(env) == 1``.
 * **Eq. 3 units.** Every cost in lfd's learning and planning is in the units of Eq. 3:
@@ -32,6 +39,7 @@ from lfd.robot.robots import RobotSpec
 
 __all__ = [
     "COVARIANCES",
+    "FEATURE_SETS",
     "FORMAT",
     "OFFSETS",
     "ModelFormatError",
@@ -41,10 +49,14 @@ __all__ = [
     "landmarks_inverse_tensor",
     "logdet_tensor",
     "step_nll_tensor",
+    "task_features_tensor",
+    "task_vectors_tensor",
     "virtual_inverse_tensor",
 ]
 
 COVARIANCES = ("full", "block")
+FEATURE_SETS = ("paper", "attitude")
+TASK_VECTORS = {"paper": 1, "attitude": 3}  # world vectors per configuration: the tool point, then axes
 OFFSETS = (0, 1, 2)
 FORMAT = "lfd-task-model/1"
 
@@ -70,16 +82,36 @@ def virtual_inverse_tensor(env: torch.Tensor, T_landmark_world: torch.Tensor) ->
     return torch.einsum("z,mzij->mij", env, T_landmark_world)
 
 
-def features_tensor(q: torch.Tensor, T_world_ee: torch.Tensor, tool: torch.Tensor,
-                    K_virt_inv: torch.Tensor) -> torch.Tensor:
-    """Eq. 2. ``q (N, d)``, ``T_world_ee (N, 4, 4)``, ``tool (3,)``, ``K_virt_inv (N, 4, 4)`` or
-    ``(4, 4)`` -> ``f (N, d + 3)``."""
-    p_world = T_world_ee[:, :3, :3] @ tool + T_world_ee[:, :3, 3]  # (N, 3)
+def task_vectors_tensor(T_world_ee: torch.Tensor, tool: torch.Tensor, feature_set: str = "paper") -> torch.Tensor:
+    """The world vectors the task features are made of: ``T_world_ee (N, 4, 4)``, ``tool (3,)``
+    -> ``P (N, k, 3)``: the tool point, then (``'attitude'``) the end effector's x and y axes."""
+    R = T_world_ee[:, :3, :3]
+    p = (R @ tool + T_world_ee[:, :3, 3])[:, None]  # (N, 1, 3)
+    if feature_set == "paper":
+        return p
+    if feature_set != "attitude":
+        raise ValueError(f"feature set must be one of {FEATURE_SETS}, got {feature_set!r}")
+    return torch.cat([p, R[:, :, :2].transpose(1, 2)], dim=1)  # (N, 3, 3)
+
+
+def task_features_tensor(P: torch.Tensor, K_virt_inv: torch.Tensor) -> torch.Tensor:
+    """``K_virt^-1`` applied to ``P (N, k, 3)`` (row 0 a point, the others directions); ``K_virt_inv``
+    ``(4, 4)`` or ``(N, 4, 4)`` -> ``x (N, 3k)``."""
     if K_virt_inv.dim() == 2:
-        x = p_world @ K_virt_inv[:3, :3].T + K_virt_inv[:3, 3]  # (N, 3)
+        x = P @ K_virt_inv[:3, :3].T  # (N, k, 3)
+        b = K_virt_inv[:3, 3].expand(len(P), 3)
     else:
-        x = torch.einsum("nij,nj->ni", K_virt_inv[:, :3, :3], p_world) + K_virt_inv[:, :3, 3]
-    return torch.cat([q, x], dim=-1)
+        x = torch.einsum("nij,nkj->nki", K_virt_inv[:, :3, :3], P)
+        b = K_virt_inv[:, :3, 3]
+    return torch.cat([x[:, 0] + b, x[:, 1:].reshape(len(P), -1)], dim=1)
+
+
+def features_tensor(q: torch.Tensor, T_world_ee: torch.Tensor, tool: torch.Tensor,
+                    K_virt_inv: torch.Tensor, feature_set: str = "paper") -> torch.Tensor:
+    """Eq. 2 (and the attitude, for ``'attitude'``). ``q (N, d)``, ``T_world_ee (N, 4, 4)``,
+    ``tool (3,)``, ``K_virt_inv (N, 4, 4)`` or ``(4, 4)`` -> ``f (N, d + 3k)``."""
+    P = task_vectors_tensor(T_world_ee, tool, feature_set)
+    return torch.cat([q, task_features_tensor(P, K_virt_inv)], dim=-1)
 
 
 def logdet_tensor(sigma_inv: torch.Tensor) -> torch.Tensor:
@@ -119,6 +151,7 @@ class TaskModel:
     all_landmark_names : every landmark of the demonstrations before pruning.
     robot, task : where the model comes from (``task`` may be None).
     options : dict of how it was learned (covariance, tool/env modes, logdet_scale, ...).
+    feature_set : 'paper' (Eq. 2, ``F = d + 3``) or 'attitude' (``F = d + 9``, module docstring).
     """
 
     _TENSORS = ("tool", "env", "mu", "sigma_inv", "log_trans")
@@ -126,7 +159,7 @@ class TaskModel:
     def __init__(self, tool, env, mu, sigma_inv, log_trans, landmark_names, robot: RobotSpec,
                  task: TaskSpec | None = None, all_landmark_names=None, offsets=OFFSETS,
                  covariance: str = "full", logdet_scale: float = 1.0, options: dict | None = None,
-                 kin=None):
+                 kin=None, feature_set: str = "paper"):
         self.tool, self.env, self.mu = tool, env, mu
         self.sigma_inv, self.log_trans = sigma_inv, log_trans
         self.landmark_names = tuple(landmark_names)
@@ -139,6 +172,9 @@ class TaskModel:
         if covariance not in COVARIANCES:
             raise ValueError(f"covariance must be one of {COVARIANCES}, got {covariance!r}")
         self.covariance = covariance
+        if feature_set not in FEATURE_SETS:
+            raise ValueError(f"feature_set must be one of {FEATURE_SETS}, got {feature_set!r}")
+        self.feature_set = feature_set
         self.logdet_scale = float(logdet_scale)
         self.options = dict(options or {})
         self._kin = kin
@@ -156,7 +192,7 @@ class TaskModel:
             raise ValueError(f"TaskModel.mu must have shape (T, F), got {tuple(self.mu.shape)}")
         T, F = self.mu.shape
         d = len(self.robot.joint_names)
-        for name, shape in (("tool", (3,)), ("env", (len(self.landmark_names),)), ("mu", (T, d + 3)),
+        for name, shape in (("tool", (3,)), ("env", (len(self.landmark_names),)), ("mu", (T, d + self.n_task_features)),
                             ("sigma_inv", (T, F, F)), ("log_trans", (T, len(self.offsets)))):
             got = tuple(getattr(self, name).shape)
             if got != shape:
@@ -200,6 +236,16 @@ class TaskModel:
     @property
     def n_features(self) -> int:
         return int(self.mu.shape[1])
+
+    @property
+    def n_task_features(self) -> int:
+        """Features after the joint angles: 3 (the tool point), 9 with the attitude."""
+        return 3 * TASK_VECTORS[self.feature_set]
+
+    @property
+    def dof(self) -> int:
+        """``d``, the joint angles at the front of the features."""
+        return self.n_features - self.n_task_features
 
     @property
     def trans_cost(self) -> torch.Tensor:
@@ -258,12 +304,12 @@ class TaskModel:
     def features(self, q, T_world_ee=None, landmarks=None) -> torch.Tensor:
         """Eq. 2: ``q (B, d)`` -> ``f (B, F)``; FK computed when ``T_world_ee`` is None."""
         q = torch.as_tensor(q, dtype=self.dtype, device=self.device)
-        if q.dim() != 2 or q.shape[1] != self.n_features - 3:
-            raise ValueError(f"q must have shape (B, {self.n_features - 3}), got {tuple(q.shape)}")
+        if q.dim() != 2 or q.shape[1] != self.dof:
+            raise ValueError(f"q must have shape (B, {self.dof}), got {tuple(q.shape)}")
         if T_world_ee is None:
             T_world_ee = self.kin.fk(q)
         T_world_ee = torch.as_tensor(T_world_ee, dtype=self.dtype, device=self.device)
-        return features_tensor(q, T_world_ee, self.tool, self.K_virt_inv(landmarks))
+        return features_tensor(q, T_world_ee, self.tool, self.K_virt_inv(landmarks), self.feature_set)
 
     def step_nll(self, q, T_world_ee=None, landmarks=None) -> torch.Tensor:
         """The planner's cost ``(B, d) -> (B, T)``, Eq. 3 units (``s log|Sigma_t| + Mahalanobis^2``).
@@ -281,6 +327,7 @@ class TaskModel:
                 "all_landmark_names": list(self.all_landmark_names),
                 "time_steps": self.time_steps, "n_features": self.n_features,
                 "offsets": list(self.offsets), "covariance": self.covariance,
+                "feature_set": self.feature_set,
                 "logdet_scale": self.logdet_scale, "options": self.options}
 
     def state_dict(self) -> dict[str, torch.Tensor]:
@@ -330,6 +377,6 @@ class TaskModel:
                        task=TaskSpec.from_dict(cfg["task"]) if cfg.get("task") else None,
                        all_landmark_names=cfg.get("all_landmark_names"), offsets=cfg["offsets"],
                        covariance=cfg["covariance"], logdet_scale=cfg.get("logdet_scale", 1.0),
-                       options=cfg.get("options"), kin=kin)
+                       options=cfg.get("options"), kin=kin, feature_set=cfg.get("feature_set", "paper"))
         except (KeyError, ValueError, TypeError) as e:
             raise ModelFormatError(f"{model_dir}: inconsistent task model ({e})") from e

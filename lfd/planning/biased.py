@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from lfd.learning.model import TaskModel
+from lfd.learning.model import TaskModel, task_features_tensor, task_vectors_tensor
 from lfd.robot.ik import IKConfig, solve_ik
 
 __all__ = ["biased_configurations", "chain_edges", "project_to_model"]
@@ -41,17 +41,21 @@ def project_to_model(model: TaskModel, q: torch.Tensor, t, f_target: torch.Tenso
     W = model.sigma_inv[t].detach()  # (F, F), or (C, F, F) for per-row steps
     W = W.expand(len(q), *W.shape[-2:])  # (C, F, F)
     K = model.K_virt_inv(landmarks).detach()  # (4, 4)
-    A, b = K[:3, :3], K[:3, 3]
+    A = K[:3, :3]
     eye = torch.eye(d, dtype=q.dtype, device=q.device)
+    tool = model.tool.detach()
 
     def residual(q):
         """Residual ``(C, F)`` and its Jacobian ``(C, F, d)`` at ``q``, from one forward pass."""
         J, T_world_ee = kin.jacobian(q, with_pose=True)  # (C, 6, d), (C, 4, 4)
-        lever = T_world_ee[:, :3, :3] @ model.tool.detach()  # (C, 3) tool point offset, world
-        x = (T_world_ee[:, :3, 3] + lever) @ A.T + b  # (C, 3) tool point in the virtual frame
-        r = (W @ (torch.cat([q, x], dim=1) - f_target)[..., None])[..., 0]  # (C, F)
-        J_tool = J[:, :3] + torch.cross(J[:, 3:], lever[..., None].expand_as(J[:, 3:]), dim=1)
-        Jr = W @ torch.cat([eye.expand(len(q), d, d), A @ J_tool], dim=1)  # (C, F, d)
+        P = task_vectors_tensor(T_world_ee, tool, model.feature_set)  # (C, k, 3) tool point, axes
+        r = (W @ (torch.cat([q, task_features_tensor(P, K)], dim=1) - f_target)[..., None])[..., 0]  # (C, F)
+        # d/dq of the tool point: v + w x lever; of an axis a: w x a (J's rows: v, then w)
+        lever = P - torch.cat([T_world_ee[:, None, :3, 3], torch.zeros_like(P[:, 1:])], dim=1)  # (C, k, 3)
+        J_w = J[:, None, 3:].expand(-1, P.shape[1], -1, -1)  # (C, k, 3, d)
+        J_P = torch.cross(J_w, lever[..., None].expand_as(J_w), dim=2)
+        J_P[:, 0] += J[:, :3]
+        Jr = W @ torch.cat([eye.expand(len(q), d, d), (A @ J_P).reshape(len(q), -1, d)], dim=1)  # (C, F, d)
         return r, Jr
 
     q = q.detach().clone()
@@ -119,7 +123,7 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
     """
     kin = model.kin
     T, F = model.mu.shape
-    d = F - 3
+    d = model.dof
     chains = max(1, -(-n // T))
     sigma = torch.linalg.inv(model.sigma_inv)  # (T, F, F) lower Cholesky factors of Sigma_t
     z = torch.randn(chains, 1, F, generator=generator, dtype=model.dtype)
@@ -132,7 +136,7 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
         q_rest = q_rest + offset.to(model.device)
     q_rest = torch.maximum(torch.minimum(q_rest, kin.upper), kin.lower)  # (C, T, d)
     T_world_virt = torch.linalg.inv(model.K_virt_inv(landmarks))  # (4, 4)
-    p_world = f[..., d:] @ T_world_virt[:3, :3].T + T_world_virt[:3, 3]  # (C, T, 3)
+    p_world = f[..., d:d + 3] @ T_world_virt[:3, :3].T + T_world_virt[:3, 3]  # (C, T, 3)
     weights = torch.tensor([1, 1, 1, 0, 0, 0], dtype=model.dtype, device=model.device)
     T_target = torch.eye(4, dtype=model.dtype, device=model.device).repeat(chains, T, 1, 1)  # (C, T, 4, 4)
     T_target[..., :3, 3] = p_world

@@ -76,8 +76,7 @@ class TaskPlanner:
             def sample_fn(n, _kin=self.kin, _gen=self._gen):
                 return _kin.sample_uniform(n, generator=_gen).cpu().numpy()
         self.sample_fn = sample_fn
-        T, F = model.mu.shape
-        d = F - 3
+        T, d = model.time_steps, model.dof
         self.n_vertices = settings.n_vertices or default_vertices(T)
         sigma = torch.linalg.inv(model.sigma_inv.detach())  # (T, F, F) lower Cholesky of Sigma_t
         cov_q = (sigma @ sigma.transpose(-1, -2))[:, :d, :d]  # (T, d, d) joint block
