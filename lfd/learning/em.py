@@ -124,12 +124,14 @@ class EMFitter:
         """Per-step ``mu (T, F)``, ``Sigma (T, F, F)``, counts ``n (T,)`` (eta-optimum for this zeta).
 
         Sums over the observations of each step are products with the one-hot ``E (T, N)``
-        (``index_add_`` on CPU is an order of magnitude slower, forward and backward)."""
+        (``index_add_`` on CPU is an order of magnitude slower, forward and backward); the
+        scatter matrices are one product with the observations' outer products ``(N, F * F)``
+        (4x faster, forward and backward, than masking ``c`` per step into ``(T, N, F)``)."""
         E = self._onehot(t_idx)
         n = E.sum(1)
         mu = (E @ f) / n.clamp(min=1)[:, None]
         c = f - mu[t_idx]  # (N, F)
-        S = (E[:, :, None] * c[None]).transpose(1, 2) @ c  # (T, F, F)
+        S = (E @ (c[:, :, None] * c[:, None, :]).reshape(len(c), -1)).reshape(-1, self.F, self.F)  # (T, F, F)
         Psi = torch.diag(self.floor ** 2)
         Sigma = (S + self.nu * Psi) / (self.s * n.clamp(min=1))[:, None, None] * self.mask
         return mu, Sigma, n
