@@ -82,11 +82,12 @@ def test_linear_init_with_band_0_keeps_the_uniform_warp(synth, kin):
     assert np.linalg.norm(res.model.tool.numpy() - truth.tool) < 0.02
 
 
-@pytest.mark.parametrize("covariance", ["full", "block"])
-def test_vectorized_loss_equals_loop_over_observations(synth, kin, covariance):
+@pytest.mark.parametrize("covariance,feature_set", [("full", "paper"), ("block", "paper"), ("block", "attitude")])
+def test_vectorized_loss_equals_loop_over_observations(synth, kin, covariance, feature_set):
     ds, truth = synth
-    cfg = FitConfig(time_steps=T_STEPS, covariance=covariance)
-    data, fi = _fitter(ds, kin, cfg)
+    cfg = FitConfig(time_steps=T_STEPS, covariance=covariance, features=feature_set)
+    data = FitData(ds, kin, torch.float64, torch.device("cpu"), feature_set)
+    fi = EMFitter(data, cfg, torch.float64, torch.device("cpu"), list(range(len(ds.landmark_names))))
     t_idx = torch.as_tensor(np.concatenate(truth.alignments))
     tool = torch.tensor([0.01, 0.02, 0.1], dtype=torch.float64)
     w = torch.tensor([0.6, 0.2, 0.1, 0.05, 0.05], dtype=torch.float64)
@@ -98,9 +99,15 @@ def test_vectorized_loss_equals_loop_over_observations(synth, kin, covariance):
         m = int(data.demo[n])
         K_inv = sum(w[i] * torch.linalg.inv(torch.as_tensor(ds.demos[m].landmarks[i])) for i in range(5))
         p = K_inv @ data.T_world_ee[n] @ torch.cat([tool, torch.ones(1, dtype=torch.float64)])
-        f = torch.cat([data.q[n], p[:3]])[None]
+        f = [data.q[n], p[:3]]
+        if feature_set == "attitude":  # the gripper's x and y axes as directions
+            f += [(K_inv[:3, :3] @ data.T_world_ee[n, :3, k]) for k in range(2)]
+        f = torch.cat(f)[None]
         total += float(step_nll_tensor(f, mu, si)[0, t_idx[n]])
-    total += float(fi.nu * ((si * fi.floor) ** 2).sum())  # the variance-floor prior
+    floor = torch.tensor([cfg.floor_joint] * 7 + [cfg.floor_task] * 3 + [cfg.floor_attitude] * (len(fi.floor) - 10),
+                         dtype=torch.float64)
+    assert torch.equal(fi.floor, floor)
+    total += float(fi.nu * ((si * floor) ** 2).sum())  # the variance-floor prior
     assert float(got) == pytest.approx(total, rel=1e-10)
     # profiled objective (eta in closed form) equals the joint objective at that eta
     assert float(fi.profiled(tool, w, t_idx)) == pytest.approx(float(got), rel=1e-10)
