@@ -111,7 +111,7 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     p.add_argument("--device", default="cpu", type=str, metavar="DEVICE",
                    help="torch device string to learn on: cpu, cuda, cuda:1, mps, ...")
     p.add_argument("--covariance", default=None, choices=("full", "block"),
-                   help="per-step covariance: block (joints independent of the task features) or full, "
+                   help="per-step covariance: block (joints, tool point and attitude independent of each other) or full, "
                         "the paper's (default: block)")
     p.add_argument("--features", default=None, choices=("paper", "attitude"),  # lfd.learning.model.FEATURE_SETS
                    help="feature space: the paper's (joint angles, tool point in the virtual landmark frame) or "

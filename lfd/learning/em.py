@@ -98,11 +98,11 @@ class EMFitter:
                                   + [cfg.floor_attitude] * (data.n_task - 3), dtype=dtype, device=device)
         self.nu = float(cfg.floor_weight) if cfg.floor_weight is not None else data.N / self.T
         self.s = float(cfg.logdet_scale)
-        mask = torch.ones(self.F, self.F, dtype=dtype, device=device)
-        if cfg.covariance == "block":
-            mask[d:, :d] = 0
-            mask[:d, d:] = 0
-        self.mask = mask
+        if cfg.covariance == "block":  # joints, tool point, attitude: each its own block
+            group = torch.tensor([0] * d + [1] * 3 + [2] * (data.n_task - 3), device=device)
+            self.mask = (group[:, None] == group[None, :]).to(dtype)
+        else:
+            self.mask = torch.ones(self.F, self.F, dtype=dtype, device=device)
         if self.Z > 1:  # orthonormal basis of {u : sum u = 0}
             Q, _ = torch.linalg.qr(torch.cat([torch.ones(self.Z, 1, dtype=dtype, device=device),
                                               torch.eye(self.Z, dtype=dtype, device=device)], 1))

@@ -5,8 +5,7 @@ so that the tool point ``tool`` (end-effector frame) lands at targets drawn, per
 from known Gaussians ``N(m_t, C_t)`` in the frame of one landmark (``true_landmark``) among
 ``Z``; the null space pulls each configuration towards a per-step nominal configuration
 plus a per-demonstration offset. Optionally the first ``fixed_steps`` steps are fixed in the
-robot's (world) frame instead, like the start above the source container, and the nominal wrist
-roll (the last joint) turns by ``roll`` radians over the last third of the steps, like a pour.
+robot's (world) frame instead, like the start above the source container.
 """
 
 from __future__ import annotations
@@ -107,16 +106,13 @@ def _landmarks_and_targets(rng, align, Z, box, rotations, means, stds, fixed_ste
 def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5, true_landmark=0,
                    tool=(0.03, -0.02, 0.15), fixed_steps=0, rotations=False, seed=0,
                    task=None, demo_spread=0.1, std_scale=1.0, dt=None,
-                   landmark_motion=0.0, robot: RobotSpec = BAXTER_LEFT,
-                   roll: float = 0.0) -> tuple[DemoSet, SyntheticTruth]:
+                   landmark_motion=0.0, robot: RobotSpec = BAXTER_LEFT) -> tuple[DemoSet, SyntheticTruth]:
     """A ``DemoSet`` and the ``SyntheticTruth`` it was drawn from (see the module docstring).
 
     ``landmark_motion``: metres the true landmark travels, at constant speed in a random horizontal
     direction, during each demonstration (a hand moving towards the robot in a handover); the task
     follows it, and the landmarks are then tracked, ``(S, Z, 4, 4)`` per demonstration.
     ``robot``: a built-in arm (``ARMS``: its postures and the landmarks' box); ``kin`` must be its model.
-    ``roll``: radians the nominal last joint turns, smoothly, over the last third of the steps
-    (a pour's roll; the IK's null-space pull carries it into the demonstrations).
 
     ``dt``: the sampling interval written into every demonstration; default the ``task``'s
     (``TaskSpec.dt``), 0.1 s without a task, so that a set saved with its task loads again.
@@ -138,9 +134,6 @@ def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5,
         raise ValueError(f"no synthetic demonstrations for robot {robot.name!r}; built in: {', '.join(ARMS)}")
     q_start, q_end, (lo, hi) = ARMS[robot.name]
     q_nom_steps = (1 - s) * q_start + s * q_end  # (T, d)
-    if roll:
-        u = np.clip((s[:, 0] - 2 / 3) * 3, 0.0, 1.0)
-        q_nom_steps[:, -1] += roll * u * u * (3 - 2 * u)  # smoothstep over the last third
     tool = np.asarray(tool, dtype=float)
     lms, aligns, all_targets, all_nom = [], [], [], []
     for m in range(n_demos):
