@@ -115,7 +115,8 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                         "the paper's (default: block)")
     p.add_argument("--features", default=None, choices=("paper", "attitude"),  # lfd.learning.model.FEATURE_SETS
                    help="feature space: the paper's (joint angles, tool point in the virtual landmark frame) or "
-                        "attitude (also the gripper's axes in that frame; docs/DESIGN.md) (default: paper)")
+                        "attitude (also the gripper's axes in that frame; docs/DESIGN.md) (default: the task.json's "
+                        "features, paper without one; the built-in pour: attitude)")
     p.add_argument("--init", default=None, choices=("reference", "random", "linear"),  # lfd.learning.learn.INITS
                    help="restarts' first alignments: DTW onto a reference demonstration (default: reference), "
                         "independent random warps (the paper's) or the uniform time warp")
@@ -255,7 +256,7 @@ def _fit_config(args, ds, demos_dir: Path):
     for key, val in (("restarts", args.restarts), ("covariance", args.covariance), ("init", args.init),
                      ("offsets", tuple(args.offsets) if args.offsets else None),
                      ("floor_task", args.floor_task), ("floor_joint", args.floor_joint),
-                     ("features", args.features), ("floor_attitude", args.floor_attitude),
+                     ("floor_attitude", args.floor_attitude),
                      ("tool_radius", args.tool_radius)):
         if val is not None:
             kw[key] = val
@@ -266,6 +267,7 @@ def _fit_config(args, ds, demos_dir: Path):
             raise UsageError(f"--band must be a whole number of steps or 'none', got {args.band!r}") from None
     kw["time_steps"] = args.time_steps or (ds.task.time_steps if ds.task else 24)
     kw["subsample"] = args.subsample or (ds.task.subsample if ds.task else 1)
+    kw["features"] = args.features or (ds.task.features if ds.task else "paper")
     if kw["subsample"] > 1 and ds.task is None:
         raise UsageError(f"--subsample {kw['subsample']}: {demos_dir} has no task.json, where the model's "
                          f"sampling interval is kept; add one (lfd.learning.tasks.TaskSpec) or leave --subsample out")
@@ -282,7 +284,7 @@ def _summary(result, ds, cfg, n_obs: int) -> dict:
     m = result.model
     summary = {"learning_time_s": result.timings["total_s"], "n_demos": len(ds.demos),
                "n_observations": n_obs, "subsample": cfg.subsample, "dt": float(m.task.dt) if m.task else None,
-               "time_steps": cfg.time_steps, "restarts": cfg.restarts,
+               "features": cfg.features, "time_steps": cfg.time_steps, "restarts": cfg.restarts,
                "covariance": cfg.covariance, "seed": cfg.seed, "final_loss": result.final_loss,
                "restart_losses": [x if np.isfinite(x) else None for x in result.restart_losses],
                "em_iterations": list(result.em_iterations), "best_restart": result.best_restart,

@@ -62,6 +62,7 @@ def _one_line_exit_2(r, fragment: str) -> None:
     ({"manual_tool_point": [0, 0, float("inf")]}, "manual_tool_point needs 3 finite numbers"),
     ({"name": {"a": 1}}, "name must be a non-empty string"),
     ({"reference_landmark": ["bowl"]}, "reference_landmark must be a landmark's name"),
+    ({"features": "orientation"}, "features must be one of paper, attitude"),
 ])
 def test_task_json_entries_are_checked(good_dir, kin, entry, fragment):
     # json.dumps writes inf as Infinity, which Python's json reads back: a real file's content

@@ -186,7 +186,7 @@ CASES = [
     ("subsample-no-task-json", _no_task_json, "has no task.json, where the model's sampling interval is kept"),
     ("subsample-word", _train("--subsample", "half"), "argument --subsample: invalid int value: 'half'"),
     ("floor-zero", _train("--floor-task", "0"),
-     "FitConfig.floor_joint and floor_task must be positive standard deviations, got 0.001, 0.0"),
+     "FitConfig.floor_joint, floor_task and floor_attitude must be positive standard deviations, got 0.001, 0.0, 0.01"),
     ("out-is-file", _train(out=_out_is_file), "exists and is not a folder"),
     ("out-under-a-file", _train(out=_out_under_file), "cannot create this folder (Not a directory)"),
     ("device-cuda", _train("--device", "cuda"), "--device cuda: torch.cuda.is_available() is False"),
