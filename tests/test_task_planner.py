@@ -75,15 +75,18 @@ def _pose(rotvec, position):
     return T
 
 
-@pytest.mark.parametrize("feature_set", ["paper", "attitude"])
-def test_step_cost_is_the_models_mahalanobis_term(kin, feature_set):
+@pytest.mark.parametrize("feature_set,blocks", [("paper", False), ("attitude", False), ("attitude", True)])
+def test_step_cost_is_the_models_mahalanobis_term(kin, feature_set, blocks):
     """The planner's step cost is ``ModelStepCost``: per configuration and step, ``step_nll`` less
-    ``s log|Sigma_t|`` (full covariances, s != 1, two rotated landmarks); prepared once, it follows
-    the landmarks when they move."""
+    ``s log|Sigma_t|`` (full or block covariances, s != 1, two rotated landmarks); prepared once,
+    it follows the landmarks when they move."""
     base = _model(kin, feature_set=feature_set)
     T, F = base.mu.shape
     g = torch.Generator().manual_seed(5)
     L = torch.tril(0.3 * torch.randn(T, F, F, generator=g, dtype=torch.float64), -1)
+    if blocks:  # joints, tool point, attitude: the learner's default 'block' covariance
+        group = torch.tensor([0] * 7 + [1] * 3 + [2] * 6)
+        L = L * (group[:, None] == group[None, :])
     sigma_inv = L + torch.diag_embed(torch.exp(0.5 * torch.randn(T, F, generator=g, dtype=torch.float64)))
     model = TaskModel(torch.tensor([0.02, -0.01, 0.1], dtype=torch.float64),
                       torch.tensor([0.3, 0.7], dtype=torch.float64), base.mu, sigma_inv, base.log_trans,

@@ -25,7 +25,8 @@ Written in ``x`` itself, ``|r_t|^2 = alpha'_t + 2 beta'_t . x + x^T G_t x`` with
 ``alpha' (N, T)``, ``beta' (N, T, 3k)`` and the world vectors ``P (N, k, 3)`` (the tool point, then
 the axes) are prepared; a landmark move recomputes ``x`` (``K_virt^-1`` applied to ``P``), one
 batched product for ``beta' . x`` and one matrix product ``(N, m) @ (m, T)`` for the quadratic
-form over the ``m = 3k (3k + 1) / 2`` distinct products ``x_i x_j``: for the paper's features
+form over the ``m <= 3k (3k + 1) / 2`` distinct products ``x_i x_j`` that some step weighs (27
+with the attitude in a block of its own, 6 for the tool point alone): for the paper's features
 (``k = 1``) about 20 flops per configuration and step instead of FK plus an ``F x F`` triangular
 product.
 
@@ -86,7 +87,9 @@ class ModelStepCost:
         self._tool = model.tool.detach()  # (3,)
         self._Gmu = torch.einsum("tij,tj->ti", G, self._mu_x)  # (T, 3k)
         self._muGmu = (self._mu_x * self._Gmu).sum(-1)  # (T,)
-        i, j = torch.triu_indices(G.shape[1], G.shape[1], device=G.device)  # the distinct products x_i x_j
+        i, j = torch.triu_indices(G.shape[1], G.shape[1], device=G.device)  # the distinct products x_i x_j,
+        used = (G[:, i, j] != 0).any(0)  # less those no step weighs (across a block covariance's blocks)
+        i, j = i[used], j[used]
         self._pairs = (i, j)
         self._Gtri = (G[:, i, j] * torch.where(i == j, 1.0, 2.0).to(G)).T.contiguous()  # (m, T)
 
