@@ -44,7 +44,7 @@ from lfd.cli import (
     run_main,
     writable_dir,
 )
-from lfd.learning.tasks import TASKS
+from lfd.learning.tasks import FEATURE_SETS, TASKS
 from lfd.train_log import Logger
 
 __all__ = [
@@ -113,7 +113,7 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     p.add_argument("--covariance", default=None, choices=("full", "block"),
                    help="per-step covariance: block (joints, tool point and attitude independent of each other) or full, "
                         "the paper's (default: block)")
-    p.add_argument("--features", default=None, choices=("paper", "attitude"),  # lfd.learning.model.FEATURE_SETS
+    p.add_argument("--features", default=None, choices=FEATURE_SETS,
                    help="feature space: the paper's (joint angles, tool point in the virtual landmark frame) or "
                         "attitude (also the gripper's axes in that frame; docs/DESIGN.md) (default: the task.json's "
                         "features, paper without one; the built-in pour: attitude)")
@@ -268,6 +268,9 @@ def _fit_config(args, ds, demos_dir: Path):
     kw["time_steps"] = args.time_steps or (ds.task.time_steps if ds.task else 24)
     kw["subsample"] = args.subsample or (ds.task.subsample if ds.task else 1)
     kw["features"] = args.features or (ds.task.features if ds.task else "paper")
+    if args.floor_attitude is not None and kw["features"] != "attitude":
+        raise UsageError(f"--floor-attitude applies to the attitude features; this model is learned in the "
+                         f"{kw['features']!r} features (--features attitude, or the task.json's 'features')")
     if kw["subsample"] > 1 and ds.task is None:
         raise UsageError(f"--subsample {kw['subsample']}: {demos_dir} has no task.json, where the model's "
                          f"sampling interval is kept; add one (lfd.learning.tasks.TaskSpec) or leave --subsample out")
