@@ -29,7 +29,7 @@ def synth(kin):
 
 
 def _fitter(ds, kin, cfg, dtype=torch.float64):
-    data = FitData(ds, kin, dtype, torch.device("cpu"))
+    data = FitData(ds, kin, dtype, torch.device("cpu"), cfg.features)
     return data, EMFitter(data, cfg, dtype, torch.device("cpu"), list(range(len(ds.landmark_names))))
 
 
@@ -86,8 +86,7 @@ def test_linear_init_with_band_0_keeps_the_uniform_warp(synth, kin):
 def test_vectorized_loss_equals_loop_over_observations(synth, kin, covariance, feature_set):
     ds, truth = synth
     cfg = FitConfig(time_steps=T_STEPS, covariance=covariance, features=feature_set)
-    data = FitData(ds, kin, torch.float64, torch.device("cpu"), feature_set)
-    fi = EMFitter(data, cfg, torch.float64, torch.device("cpu"), list(range(len(ds.landmark_names))))
+    data, fi = _fitter(ds, kin, cfg)
     t_idx = torch.as_tensor(np.concatenate(truth.alignments))
     tool = torch.tensor([0.01, 0.02, 0.1], dtype=torch.float64)
     w = torch.tensor([0.6, 0.2, 0.1, 0.05, 0.05], dtype=torch.float64)
@@ -115,9 +114,10 @@ def test_vectorized_loss_equals_loop_over_observations(synth, kin, covariance, f
         assert torch.count_nonzero(si[:, 7:, :7]) == 0
 
 
-def test_profiled_gradient_matches_finite_differences(synth, kin):
+@pytest.mark.parametrize("feature_set", ["paper", "attitude"])
+def test_profiled_gradient_matches_finite_differences(synth, kin, feature_set):
     ds, truth = synth
-    _, fi = _fitter(ds, kin, FitConfig(time_steps=T_STEPS))
+    _, fi = _fitter(ds, kin, FitConfig(time_steps=T_STEPS, features=feature_set))
     t_idx = torch.as_tensor(np.concatenate(truth.alignments))
     tool = torch.tensor([0.01, 0.02, 0.1], dtype=torch.float64, requires_grad=True)
     w = torch.tensor([0.6, 0.2, 0.1, 0.05, 0.05], dtype=torch.float64, requires_grad=True)
