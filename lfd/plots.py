@@ -22,7 +22,7 @@ def plot_plan_features(model, configurations: np.ndarray, time_steps: np.ndarray
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    task = slice(model.dof, model.dof + 3)  # the tool point's features
+    task = model.tool_features
     with torch.no_grad():
         f = model.features(torch.as_tensor(configurations, dtype=model.dtype), landmarks=landmarks)
         f = f.cpu().numpy()[:, task]

@@ -94,12 +94,13 @@ class EMFitter:
         self.d, self.F = d, d + data.n_task
         self.T_lm = data.T_lm_world[:, landmark_idx]  # (R, Z', 4, 4)
         self.Z = len(landmark_idx)
-        self.floor = torch.tensor([cfg.floor_joint] * d + [cfg.floor_task] * 3
-                                  + [cfg.floor_attitude] * (data.n_task - 3), dtype=dtype, device=device)
+        # each feature's group: the joints, the tool point, the attitude
+        group = torch.tensor([0] * d + [1] * 3 + [2] * (data.n_task - 3), device=device)  # (F,)
+        self.floor = torch.tensor([cfg.floor_joint, cfg.floor_task, cfg.floor_attitude],
+                                  dtype=dtype, device=device)[group]  # (F,)
         self.nu = float(cfg.floor_weight) if cfg.floor_weight is not None else data.N / self.T
         self.s = float(cfg.logdet_scale)
-        if cfg.covariance == "block":  # joints, tool point, attitude: each its own block
-            group = torch.tensor([0] * d + [1] * 3 + [2] * (data.n_task - 3), device=device)
+        if cfg.covariance == "block":  # each group its own block
             self.mask = (group[:, None] == group[None, :]).to(dtype)
         else:
             self.mask = torch.ones(self.F, self.F, dtype=dtype, device=device)

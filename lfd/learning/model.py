@@ -247,6 +247,11 @@ class TaskModel:
         return self.n_features - self.n_task_features
 
     @property
+    def tool_features(self) -> slice:
+        """Where the tool point sits in the features: ``f[..., tool_features]`` is ``(..., 3)``."""
+        return slice(self.dof, self.dof + 3)
+
+    @property
     def trans_cost(self) -> torch.Tensor:
         """``(T, K)`` transition costs in Eq. 3 units: ``-2 log p(t + offsets[k] | t)``."""
         return -2.0 * self.log_trans

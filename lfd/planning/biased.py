@@ -136,7 +136,7 @@ def biased_configurations(model: TaskModel, landmarks: torch.Tensor, n: int,
         q_rest = q_rest + offset.to(model.device)
     q_rest = torch.maximum(torch.minimum(q_rest, kin.upper), kin.lower)  # (C, T, d)
     T_world_virt = torch.linalg.inv(model.K_virt_inv(landmarks))  # (4, 4)
-    p_world = f[..., d:d + 3] @ T_world_virt[:3, :3].T + T_world_virt[:3, 3]  # (C, T, 3)
+    p_world = f[..., model.tool_features] @ T_world_virt[:3, :3].T + T_world_virt[:3, 3]  # (C, T, 3)
     weights = torch.tensor([1, 1, 1, 0, 0, 0], dtype=model.dtype, device=model.device)
     T_target = torch.eye(4, dtype=model.dtype, device=model.device).repeat(chains, T, 1, 1)  # (C, T, 4, 4)
     T_target[..., :3, 3] = p_world

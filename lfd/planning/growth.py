@@ -81,8 +81,8 @@ class BiasedGrowth:
 
     def __init__(self, model: TaskModel, settings: TaskPlannerSettings, generator: torch.Generator, max_vertices: int):
         self.model, self.settings, self._gen, self.max_vertices = model, settings, generator, int(max_vertices)
-        d = model.dof
-        task_sd = torch.linalg.eigvalsh(model.covariances.detach()[:, d:d + 3, d:d + 3]).amax(-1).sqrt()  # (T,) tool point
+        tool = model.tool_features
+        task_sd = torch.linalg.eigvalsh(model.covariances.detach()[:, tool, tool]).amax(-1).sqrt()  # (T,) tool point
         self._task_steps = (task_sd <= TASK_STEP_SD).cpu().numpy()  # (T,) bool
         # landmark positions (Z, 3) biased samples were made for, and the time steps whose
         # tool-point targets no sampled execution reached there (the arm cannot: 'unreachable')
