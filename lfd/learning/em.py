@@ -16,7 +16,6 @@ import torch
 
 from lfd.learning.dtw import dtw_align
 from lfd.learning.model import (
-    TASK_VECTORS,
     aligned_nll_tensor,
     landmarks_inverse_tensor,
     step_nll_tensor,
@@ -24,6 +23,7 @@ from lfd.learning.model import (
     task_vectors_tensor,
 )
 from lfd.learning.priors import estimate_log_trans, floor_prior, volume_prior
+from lfd.learning.tasks import TASK_VECTORS
 
 __all__ = ["EM_FAILURES", "EMFitter", "FitData"]
 

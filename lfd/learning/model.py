@@ -34,7 +34,7 @@ from pathlib import Path
 import torch
 
 from lfd.errors import UserInputError
-from lfd.learning.tasks import FEATURE_SETS, TaskSpec
+from lfd.learning.tasks import FEATURE_SETS, TASK_VECTORS, TaskSpec
 from lfd.robot.robots import RobotSpec
 
 __all__ = [
@@ -55,7 +55,6 @@ __all__ = [
 ]
 
 COVARIANCES = ("full", "block")
-TASK_VECTORS = {"paper": 1, "attitude": 3}  # world vectors per configuration: the tool point, then axes
 OFFSETS = (0, 1, 2)
 FORMAT = "lfd-task-model/1"
 

@@ -15,9 +15,12 @@ import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-FEATURE_SETS = ("paper", "attitude")  # the feature spaces of lfd.learning.model, which a task may name
+# the feature spaces of lfd.learning.model, which a task may name, and how many world vectors each
+# takes per configuration (the tool point, then the gripper's x and y axes)
+TASK_VECTORS = {"paper": 1, "attitude": 3}
+FEATURE_SETS = tuple(TASK_VECTORS)
 
-__all__ = ["POUR", "POWDER", "TASKS", "TASK_NAME", "TaskSpec", "check_point", "check_stride", "check_whole", "task_from_name"]
+__all__ = ["FEATURE_SETS", "POUR", "POWDER", "TASKS", "TASK_NAME", "TASK_VECTORS", "TaskSpec", "check_point", "check_stride", "check_whole", "task_from_name"]
 
 
 TASK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")  # a task's name is also a folder name (./runs/<task>)
