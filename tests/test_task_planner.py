@@ -102,6 +102,8 @@ def test_step_cost_is_the_models_mahalanobis_term(kin, feature_set, blocks):
     Q = np.concatenate([planner.roadmap.vertices[:20],
                         kin.sample_uniform(30, generator=torch.Generator().manual_seed(6)).numpy()])
     parts = cost.prepare(Q)
+    # a block covariance keeps no per-configuration beta' (it is one (T, 3k) for all), a full one does
+    assert [tuple(p.shape) for p in parts[1:]] == [(len(Q), T)] + ([] if blocks else [(len(Q), T, F - 7)])
     floor = model.logdet_scale * logdet_tensor(model.sigma_inv)  # (T,) s log|Sigma_t|
     assert float(floor.abs().min()) > 0.1  # the floor left out is not zero
     moved = poses.copy()

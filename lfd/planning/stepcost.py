@@ -23,8 +23,12 @@ joint and task columns, the residual of Eq. 3 is ``r_t = a_t + S_x,t y_t`` with
 Written in ``x`` itself, ``|r_t|^2 = alpha'_t + 2 beta'_t . x + x^T G_t x`` with
 ``alpha'_t = alpha_t - 2 beta_t . mu_x,t + mu_x,t^T G_t mu_x,t`` and ``beta'_t = beta_t - G_t mu_x,t``.
 ``alpha' (N, T)``, ``beta' (N, T, 3k)`` and the world vectors ``P (N, k, 3)`` (the tool point, then
-the axes) are prepared; a landmark move recomputes ``x`` (``K_virt^-1`` applied to ``P``), one
-batched product for ``beta' . x`` and one matrix product ``(N, m) @ (m, T)`` for the quadratic
+the axes) are prepared. With a block covariance (the learner's default: joints apart from the
+task features) ``S_x,t^T S_q,t = 0``, so ``beta_t = 0`` and ``beta'_t = -G_t mu_x,t`` is the same
+for every configuration: it is kept once, ``(T, 3k)``, not per configuration (on the pour's
+roadmap, 160,000 quadrature nodes x 48 steps x 9, 0.5 GB). A landmark move recomputes ``x``
+(``K_virt^-1`` applied to ``P``), one product for ``beta' . x`` and one matrix product
+``(N, m) @ (m, T)`` for the quadratic
 form over the ``m <= 3k (3k + 1) / 2`` distinct products ``x_i x_j`` that some step weighs (27
 with the attitude in a block of its own, 6 for the tool point alone): for the paper's features
 (``k = 1``) about 20 flops per configuration and step instead of FK plus an ``F x F`` triangular
@@ -92,32 +96,41 @@ class ModelStepCost:
         i, j = i[used], j[used]
         self._pairs = (i, j)
         self._Gtri = (G[:, i, j] * torch.where(i == j, 1.0, 2.0).to(G)).T.contiguous()  # (m, T)
+        # joints and task features coupled (a full covariance): beta' per configuration; else one
+        # (T, 3k) for all (block covariances: S_x^T S_q = 0)
+        self._coupled = bool((self._S_x.transpose(1, 2) @ self._S_q != 0).any())
+        self._beta_all = (-self._Gmu).T.contiguous()  # (3k, T) beta' when not coupled
 
-    def prepare(self, Q) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``Q (N, d)`` -> world vectors ``P (N, k, 3)``, ``alpha' (N, T)``, ``beta' (N, T, 3k)``."""
+    def prepare(self, Q) -> tuple[torch.Tensor, ...]:
+        """``Q (N, d)`` -> world vectors ``P (N, k, 3)``, ``alpha' (N, T)`` and, when joints and
+        task features are coupled, ``beta' (N, T, 3k)``."""
         m = self.model
         Q = torch.as_tensor(np.array(Q, dtype=float), dtype=m.dtype, device=m.device).reshape(-1, self.d)
-        ps, alphas, betas = [], [], []
+        N, n = len(Q), self._mu_x.shape[1]
+        P = Q.new_empty(N, n // 3, 3)
+        alpha = Q.new_empty(N, self.T)
+        beta = Q.new_empty(N, self.T, n) if self._coupled else None
         with torch.no_grad():
-            for Qb in torch.split(Q, self.max_batch):
-                ps.append(task_vectors_tensor(m.kin.fk(Qb), self._tool, m.feature_set))
+            for s in range(0, N, self.max_batch):  # filled in place: no second copy of the parts
+                Qb = Q[s:s + self.max_batch]
+                P[s:s + len(Qb)] = task_vectors_tensor(m.kin.fk(Qb), self._tool, m.feature_set)
                 a = torch.einsum("tfd,btd->btf", self._S_q, Qb[:, None, :] - self._mu_q[None])  # (B, T, F)
-                beta = torch.einsum("tfi,btf->bti", self._S_x, a)  # (B, T, 3k)
-                alphas.append((a * a).sum(-1) - 2.0 * (beta * self._mu_x).sum(-1) + self._muGmu)
-                betas.append(beta - self._Gmu)
-        if not ps:
-            z, n = Q.new_zeros, self._mu_x.shape[1]
-            return z(0, n // 3, 3), z(0, self.T), z(0, self.T, n)
-        return torch.cat(ps), torch.cat(alphas), torch.cat(betas)
+                alpha[s:s + len(Qb)] = (a * a).sum(-1) + self._muGmu
+                if beta is not None:
+                    b = torch.einsum("tfi,btf->bti", self._S_x, a)  # (B, T, 3k)
+                    alpha[s:s + len(Qb)] -= 2.0 * (b * self._mu_x).sum(-1)
+                    beta[s:s + len(Qb)] = b - self._Gmu
+        return (P, alpha) if beta is None else (P, alpha, beta)
 
     def evaluate(self, parts, landmarks) -> np.ndarray:
         """``(N, T)`` Mahalanobis terms for ``landmarks (Z, 4, 4)`` (the model's kept ones)."""
-        P, alpha, beta = parts
+        P, alpha = parts[0], parts[1]
         K = self.model.K_virt_inv(landmarks).detach()  # (4, 4)
         i, j = self._pairs
         with torch.no_grad():
             x = task_features_tensor(P, K)  # (N, 3k)
-            out = alpha + 2.0 * torch.bmm(beta, x[:, :, None])[..., 0] + (x[:, i] * x[:, j]) @ self._Gtri  # (N, T)
+            linear = torch.bmm(parts[2], x[:, :, None])[..., 0] if self._coupled else x @ self._beta_all  # (N, T)
+            out = alpha + 2.0 * linear + (x[:, i] * x[:, j]) @ self._Gtri  # (N, T)
         return _checked(out.clamp_min(0.0), len(P), self.T, "ModelStepCost")
 
 

@@ -52,6 +52,8 @@ from lfd.planning.task_settings import TaskPlannerSettings, default_vertices
 
 __all__ = ["TaskPlanner", "TaskPlannerSettings"]  # the settings live in lfd.planning.task_settings
 
+KEYPOINT_BATCH = 8192  # configurations per forward-kinematics call of ``TaskPlanner.keypoints``
+
 class TaskPlanner:
     """Plans a learned task around the caller's obstacles.
 
@@ -184,12 +186,18 @@ class TaskPlanner:
         return self.roadmap.n > before
 
     def keypoints(self, Q) -> np.ndarray:
-        """``Q (N, d) -> (N, K, 3)``: the arm's link origins and the tool point, world frame."""
+        """``Q (N, d) -> (N, K, 3)``: the arm's link origins and the tool point, world frame
+        (in batches of ``KEYPOINT_BATCH``: the FK's per-link intermediates of the ~160,000
+        quadrature nodes of a pour roadmap at once took a gigabyte)."""
         Q = torch.as_tensor(np.array(Q, dtype=float), dtype=self.model.dtype, device=self.model.device)
+        out = []
         with torch.no_grad():
-            origins, T_world_ee = self.kin.frame_origins(Q)  # (N, L, 3), (N, 4, 4)
-            tool = T_world_ee[:, :3, :3] @ self.model.tool.detach() + T_world_ee[:, :3, 3]
-        return torch.cat([origins, tool[:, None]], dim=1).cpu().numpy()
+            Q = Q.reshape(-1, self.kin.dof)
+            for Qb in torch.split(Q, KEYPOINT_BATCH) or (Q,):  # (an empty Q is one empty batch)
+                origins, T_world_ee = self.kin.frame_origins(Qb)  # (B, L, 3), (B, 4, 4)
+                tool = T_world_ee[:, :3, :3] @ self.model.tool.detach() + T_world_ee[:, :3, 3]
+                out.append(torch.cat([origins, tool[:, None]], dim=1).cpu().numpy())
+        return np.concatenate(out)
 
     def _build(self) -> None:
         s = self.settings
