@@ -127,11 +127,16 @@ class ModelStepCost:
         P, alpha = parts[0], parts[1]
         K = self.model.K_virt_inv(landmarks).detach()  # (4, 4)
         i, j = self._pairs
-        with torch.no_grad():
+        with torch.no_grad():  # one (N, T) result, accumulated in place (each fresh (N, T) temporary
+            # of a pour roadmap, 60 MB, costs its page faults: the evaluation took twice as long)
             x = task_features_tensor(P, K)  # (N, 3k)
-            linear = torch.bmm(parts[2], x[:, :, None])[..., 0] if self._coupled else x @ self._beta_all  # (N, T)
-            out = alpha + 2.0 * linear + (x[:, i] * x[:, j]) @ self._Gtri  # (N, T)
-        return _checked(out.clamp_min(0.0), len(P), self.T, "ModelStepCost")
+            out = torch.addmm(alpha, x[:, i] * x[:, j], self._Gtri)  # alpha' + quadratic form, (N, T)
+            if self._coupled:
+                out += 2.0 * torch.bmm(parts[2], x[:, :, None])[..., 0]
+            else:
+                out.addmm_(x, self._beta_all, alpha=2.0)
+            out.clamp_min_(0.0)
+        return _checked(out, len(P), self.T, "ModelStepCost")
 
 
 class CallableStepCost:
