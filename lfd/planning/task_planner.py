@@ -54,6 +54,7 @@ __all__ = ["TaskPlanner", "TaskPlannerSettings"]  # the settings live in lfd.pla
 
 KEYPOINT_BATCH = 8192  # configurations per forward-kinematics call of ``TaskPlanner.keypoints``
 
+
 class TaskPlanner:
     """Plans a learned task around the caller's obstacles.
 
