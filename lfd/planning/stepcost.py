@@ -112,14 +112,15 @@ class ModelStepCost:
         beta = Q.new_empty(N, self.T, n) if self._coupled else None
         with torch.no_grad():
             for s in range(0, N, self.max_batch):  # filled in place: no second copy of the parts
-                Qb = Q[s:s + self.max_batch]
-                P[s:s + len(Qb)] = task_vectors_tensor(m.kin.fk(Qb), self._tool, m.feature_set)
+                rows = slice(s, min(s + self.max_batch, N))
+                Qb = Q[rows]
+                P[rows] = task_vectors_tensor(m.kin.fk(Qb), self._tool, m.feature_set)
                 a = torch.einsum("tfd,btd->btf", self._S_q, Qb[:, None, :] - self._mu_q[None])  # (B, T, F)
-                alpha[s:s + len(Qb)] = (a * a).sum(-1) + self._muGmu
+                alpha[rows] = (a * a).sum(-1) + self._muGmu
                 if beta is not None:
                     b = torch.einsum("tfi,btf->bti", self._S_x, a)  # (B, T, 3k)
-                    alpha[s:s + len(Qb)] -= 2.0 * (b * self._mu_x).sum(-1)
-                    beta[s:s + len(Qb)] = b - self._Gmu
+                    alpha[rows] -= 2.0 * (b * self._mu_x).sum(-1)
+                    beta[rows] = b - self._Gmu
         return (P, alpha) if beta is None else (P, alpha, beta)
 
     def evaluate(self, parts, landmarks) -> np.ndarray:
