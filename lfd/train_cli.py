@@ -123,6 +123,9 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     p.add_argument("--band", default=None, metavar="N|none",
                    help="keep every alignment within N steps of its restart's start (default: 1); "
                         "'none' lets the DTW move freely, as in the paper")
+    p.add_argument("--max-dwell", default=None, metavar="X|none",
+                   help="most consecutive samples a demonstration may spend at one step, as a multiple of its "
+                        "mean per step (default: none, unlimited as in the paper)")
     p.add_argument("--offsets", type=int, nargs="+", default=None, metavar="K",
                    help="permitted time-step transitions (default: lfd.learning.learn.FitConfig's, 0 1 2)")
     p.add_argument("--floor-task", type=float, default=None, metavar="M",
@@ -265,6 +268,11 @@ def _fit_config(args, ds, demos_dir: Path):
             kw["band"] = None if args.band.lower() == "none" else int(args.band)
         except ValueError:
             raise UsageError(f"--band must be a whole number of steps or 'none', got {args.band!r}") from None
+    if args.max_dwell is not None:
+        try:
+            kw["max_dwell"] = None if args.max_dwell.lower() == "none" else float(args.max_dwell)
+        except ValueError:
+            raise UsageError(f"--max-dwell must be a number (>= 1) or 'none', got {args.max_dwell!r}") from None
     kw["time_steps"] = args.time_steps or (ds.task.time_steps if ds.task else 24)
     kw["subsample"] = args.subsample or (ds.task.subsample if ds.task else 1)
     kw["features"] = args.features or (ds.task.features if ds.task else "paper")

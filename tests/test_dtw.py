@@ -10,7 +10,12 @@ from lfd.learning.dtw import alignment_step_counts, dtw_align, min_samples, rand
 from lfd.learning.priors import estimate_log_trans
 
 
-def _brute_force(cost, trans, offsets):
+def _longest_stay(path):
+    runs = [len(list(g)) for _, g in itertools.groupby(path)]
+    return max(runs)
+
+
+def _brute_force(cost, trans, offsets, dwell=None):
     S, T = cost.shape
     best, best_path = np.inf, None
     for incs in itertools.product(range(len(offsets)), repeat=S - 1):
@@ -23,7 +28,7 @@ def _brute_force(cost, trans, offsets):
             total += trans[path[-1], k] + cost[s, t]
             path.append(t)
         else:
-            if path[-1] == T - 1 and total < best:
+            if path[-1] == T - 1 and total < best and (dwell is None or _longest_stay(path) <= dwell):
                 best, best_path = total, path
     return best, best_path
 
@@ -43,6 +48,35 @@ def test_dtw_equals_brute_force(seed):
         assert values[m].item() == pytest.approx(best, rel=1e-12)
         assert align[m].tolist() == path
         assert align[m][0] == 0 and align[m][-1] == T - 1
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_dwell_limited_dtw_equals_brute_force(seed):
+    """With a dwell limit the best alignment is the brute force's best among those that stay at
+    most ``dwell[m]`` consecutive samples on any step, and it differs from the unlimited one."""
+    rng = np.random.default_rng(seed)
+    T, offsets = 4, (0, 1, 2)
+    lengths = [8, 9, 7, 9]
+    dwell = [2, 3, 2, 4]
+    cost = rng.normal(size=(len(lengths), 9, T)) ** 2
+    cost[:, :, 1] *= 0.01  # step 1 is cheap: unlimited alignments stay there long
+    trans = -2 * np.log(rng.dirichlet(np.ones(3), size=T))
+    trans[T - 1, 1:] = np.inf
+    trans[T - 2, 2] = np.inf
+    free, _ = dtw_align(torch.as_tensor(cost), lengths, torch.as_tensor(trans), offsets)
+    align, values = dtw_align(torch.as_tensor(cost), lengths, torch.as_tensor(trans), offsets, dwell)
+    for m, n in enumerate(lengths):
+        best, path = _brute_force(cost[m, :n], trans, offsets, dwell[m])
+        assert values[m].item() == pytest.approx(best, rel=1e-12)
+        assert align[m].tolist() == path
+        assert _longest_stay(path) <= dwell[m]
+    assert any(_longest_stay(a) > d for a, d in zip(free, dwell))  # the limit was binding
+
+
+def test_dwell_limit_rejects_demonstrations_it_cannot_hold():
+    cost = torch.zeros(1, 9, 4, dtype=torch.float64)
+    with pytest.raises(ValueError, match="more samples than 4 steps"):
+        dtw_align(cost, [9], torch.zeros(4, 3, dtype=torch.float64), dwell=[2])
 
 
 def test_dtw_rejects_too_short_demonstrations():

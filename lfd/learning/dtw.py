@@ -13,15 +13,19 @@ finished ones keep their value).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
 __all__ = [
     "alignment_step_counts",
     "dtw_align",
+    "dwell_limits",
     "effective_demos",
     "linear_alignment",
     "min_samples",
+    "project_alignments",
     "random_alignment",
     "reference_alignments",
     "step_occupancy",
@@ -34,7 +38,15 @@ def min_samples(time_steps: int, offsets=(0, 1, 2)) -> int:
     return 1 + -(-(time_steps - 1) // step)
 
 
-def dtw_align(cost: torch.Tensor, lengths, trans_cost: torch.Tensor, offsets=(0, 1, 2)):
+def dwell_limits(lengths, time_steps: int, max_dwell: float | None) -> list[int] | None:
+    """Most samples each demonstration may spend at one step: ``ceil(max_dwell * S_m / T)``,
+    ``max_dwell`` times its mean per step (None: unlimited)."""
+    if max_dwell is None:
+        return None
+    return [max(1, math.ceil(max_dwell * int(n) / time_steps)) for n in lengths]
+
+
+def dtw_align(cost: torch.Tensor, lengths, trans_cost: torch.Tensor, offsets=(0, 1, 2), dwell=None):
     """Best alignment of each demonstration.
 
     Parameters
@@ -44,6 +56,10 @@ def dtw_align(cost: torch.Tensor, lengths, trans_cost: torch.Tensor, offsets=(0,
     lengths : (M,) number of samples of each demonstration.
     trans_cost : (T, K) cost of moving from step ``t`` by ``offsets[k]`` (``inf`` = forbidden).
     offsets : the permitted offsets, non-negative and distinct.
+    dwell : None, or (M,) the most consecutive samples each demonstration may spend at one
+        step (``dwell_limits``). The recursion then tracks how long the sample has stayed
+        (states ``(t, d)``, ``d < dwell_m``): staying moves ``d`` to ``d + 1``, any other
+        offset arrives with ``d = 0``.
 
     Returns
     -------
@@ -53,7 +69,7 @@ def dtw_align(cost: torch.Tensor, lengths, trans_cost: torch.Tensor, offsets=(0,
     Raises
     ------
     ValueError
-        a demonstration too short to reach the last step.
+        a demonstration too short to reach the last step, or too long to fit the dwell limit.
     """
     M, S, T = cost.shape
     lengths = [int(n) for n in lengths]
@@ -65,6 +81,15 @@ def dtw_align(cost: torch.Tensor, lengths, trans_cost: torch.Tensor, offsets=(0,
     if too_short:
         raise ValueError(f"demonstration(s) {too_short} have fewer than {min_samples(T, offsets)} samples "
                          f"needed to reach time step {T} with offsets {offsets}")
+    if dwell is not None:
+        dwell = [int(x) for x in dwell]
+        if len(dwell) != M or min(dwell) < 1 or 0 not in offsets:
+            raise ValueError(f"dwell must hold a positive limit per demonstration ({M}) and offsets must "
+                             f"include 0; got {dwell} and {offsets}")
+        too_long = [m for m, (n, d) in enumerate(zip(lengths, dwell)) if n > d * T]
+        if too_long:
+            raise ValueError(f"demonstration(s) {too_long} have more samples than {T} steps of at most "
+                             f"{[dwell[m] for m in too_long]} samples hold")
     dev, dt = cost.device, cost.dtype
     inf = torch.tensor(float("inf"), dtype=dt, device=dev)
     tprime = torch.arange(T, device=dev)
@@ -73,39 +98,56 @@ def dtw_align(cost: torch.Tensor, lengths, trans_cost: torch.Tensor, offsets=(0,
     valid = src >= 0
     # shifted transition cost: arriving at t' via offset k costs trans_cost[t' - o_k, k]
     tc = torch.where(valid, trans_cost[src.clamp(min=0), torch.arange(K, device=dev)[None, :]], inf)
+    D = 1 if dwell is None else max(dwell)
+    if dwell is not None:  # a stay is the move (t, d) -> (t, d + 1), not an arrival at d = 0
+        stay = offsets.index(0)
+        stay_cost = trans_cost[:, stay]  # (T,)
+        tc[:, stay] = inf
+        over = torch.arange(D, device=dev)[None, :] >= torch.tensor(dwell, device=dev)[:, None]  # (M, D)
     gather = (src + kmax).clamp(min=0)  # index into l padded with kmax infs on the left
 
     lengths_t = torch.tensor(lengths, device=dev)
-    value = torch.full((M, T), float("inf"), dtype=dt, device=dev)
-    value[:, 0] = cost[:, 0, 0]
+    value = torch.full((M, T, D), float("inf"), dtype=dt, device=dev)  # (M, T, D) by steps stayed
+    value[:, 0, 0] = cost[:, 0, 0]
     pad = torch.full((M, kmax), float("inf"), dtype=dt, device=dev)
-    args = torch.zeros((S, M, T), dtype=torch.int8, device=dev)
+    pad_d = torch.zeros((M, kmax), dtype=torch.int64, device=dev)
+    args = torch.zeros((S, M, T), dtype=torch.int8, device=dev)  # offset index of each arrival at d = 0
+    came = torch.zeros((S, M, T), dtype=torch.int16, device=dev)  # and the d it left its step with
     for s in range(1, S):
-        lp = torch.cat([pad, value], dim=1)  # (M, kmax + T)
-        cand = lp[:, gather] + tc  # (M, T, K)
+        vmin, dmin = value.min(dim=2)  # (M, T)
+        cand = torch.cat([pad, vmin], dim=1)[:, gather] + tc  # (M, T, K)
         best, arg = cand.min(dim=2)
-        new = best + cost[:, s, :]
-        active = (lengths_t > s)[:, None]
+        new = torch.empty_like(value)
+        new[:, :, 0] = best + cost[:, s, :]
+        if D > 1:
+            new[:, :, 1:] = value[:, :, :-1] + (stay_cost + cost[:, s, :])[..., None]
+        if dwell is not None:
+            new = new.masked_fill(over[:, None, :], float("inf"))
+        active = (lengths_t > s)[:, None, None]
         value = torch.where(active, new, value)
         args[s] = arg.to(torch.int8)
-    values = value[:, T - 1]
+        came[s] = torch.cat([pad_d, dmin], dim=1)[:, gather].gather(2, arg[..., None])[..., 0].to(torch.int16)
+    values, d_end = value[:, T - 1].min(dim=1)
     if not torch.isfinite(values).all():
         bad = torch.nonzero(~torch.isfinite(values)).flatten().tolist()
         raise ValueError(f"no finite alignment for demonstration(s) {bad} (non-finite costs?)")
 
-    args_np = args.cpu().numpy()
+    args_np, came_np = args.cpu().numpy(), came.cpu().numpy()
     off_np = np.asarray(offsets)
     lens = np.asarray(lengths)
     t = np.full(M, T - 1, dtype=np.int64)
+    d = d_end.cpu().numpy().astype(np.int64)
     out = np.zeros((M, S), dtype=np.int64)
     rows = np.arange(M)
     for s in range(S - 1, 0, -1):
         act = lens > s
         out[act, s] = t[act]
-        k = args_np[s, rows, t]
-        t = np.where(act, t - off_np[k], t)
+        k, back = args_np[s, rows, t], came_np[s, rows, t]
+        arrived = act & (d == 0)
+        t = np.where(arrived, t - off_np[k], t)
+        d = np.where(arrived, back, np.where(act, d - 1, d))
     out[:, 0] = t
-    if (t != 0).any():  # cannot happen with finite values; kept as an internal check
+    if (t != 0).any() or (d != 0).any():  # cannot happen with finite values; kept as an internal check
         raise RuntimeError("DTW backtracking did not end at the first step")
     return [out[m, :lengths[m]].copy() for m in range(M)], values
 
@@ -146,7 +188,7 @@ def random_alignment(n_samples: int, time_steps: int, rng: np.random.Generator,
 
 
 def reference_alignments(series, time_steps: int, ref: int, ref_alignment=None, offsets=(0, 1, 2),
-                         max_points: int | None = None) -> list[np.ndarray]:
+                         max_points: int | None = None, dwell=None) -> list[np.ndarray]:
     """Consistent starting alignments: every demonstration warped onto one reference by DTW.
 
     Each series is centred on its own mean (a demonstration done with the arm elsewhere, e.g.
@@ -155,7 +197,7 @@ def reference_alignments(series, time_steps: int, ref: int, ref_alignment=None, 
     ``dtw_align`` to ``R`` evenly spaced samples of the reference (squared distance, offsets
     ``(0, 1, 2)`` along the reference, no transition cost); a sample then takes the step the
     reference's alignment gives the matched reference sample. The result is finally projected
-    onto the alignments permitted by ``offsets`` (the closest in squared step error), so it
+    onto the alignments permitted by ``offsets`` and ``dwell`` (``project_alignments``), so it
     always starts at step 0, ends at ``time_steps - 1`` and moves by permitted offsets only.
 
     Unlike ``random_alignment`` per demonstration, the same phase of the motion starts on the
@@ -169,6 +211,7 @@ def reference_alignments(series, time_steps: int, ref: int, ref_alignment=None, 
     ref_alignment : ``(S_ref,)`` steps of the reference's samples (default: ``linear_alignment``).
     offsets : the permitted step offsets of the result.
     max_points : ``R`` at most (default ``4 T``); fewer when a series is too short to reach them.
+    dwell : None or (M,) the most consecutive samples per step of each series (``dwell_limits``).
 
     Returns
     -------
@@ -195,10 +238,18 @@ def reference_alignments(series, time_steps: int, ref: int, ref_alignment=None, 
     z_ref = torch.as_tensor(z[ref][pick])
     cost = _padded([torch.cdist(torch.as_tensor(x), z_ref) ** 2 for x in z])  # (M, S_max, R)
     warp, _ = dtw_align(cost, lengths, torch.zeros((len(pick), 3), dtype=torch.float64), (0, 1, 2))
-    want = [ref_alignment[pick[w]].astype(float) for w in warp]  # (S_m,) desired steps
+    want = [ref_alignment[pick[w]] for w in warp]  # (S_m,) desired steps
+    return project_alignments(want, time_steps, offsets, dwell)
+
+
+def project_alignments(want, time_steps: int, offsets=(0, 1, 2), dwell=None) -> list[np.ndarray]:
+    """The permitted alignments closest to ``want`` (M arrays ``(S_m,)`` of steps, any values) in
+    squared step error: from step 0 to ``time_steps - 1`` by ``offsets``, and at most ``dwell[m]``
+    consecutive samples per step when ``dwell`` is given (see ``dtw_align``)."""
     t = np.arange(time_steps, dtype=float)
-    proj = _padded([torch.as_tensor((w[:, None] - t[None, :]) ** 2) for w in want])  # (M, S_max, T)
-    out, _ = dtw_align(proj, lengths, torch.zeros((time_steps, len(offsets)), dtype=torch.float64), offsets)
+    proj = _padded([torch.as_tensor((np.asarray(w, dtype=float)[:, None] - t[None, :]) ** 2) for w in want])
+    out, _ = dtw_align(proj, [len(w) for w in want],
+                       torch.zeros((time_steps, len(offsets)), dtype=torch.float64), offsets, dwell)
     return out
 
 

@@ -14,7 +14,7 @@ import math
 import numpy as np
 import torch
 
-from lfd.learning.dtw import dtw_align
+from lfd.learning.dtw import dtw_align, dwell_limits
 from lfd.learning.model import (
     aligned_nll_tensor,
     landmarks_inverse_tensor,
@@ -100,6 +100,7 @@ class EMFitter:
                                   dtype=dtype, device=device)[group]  # (F,)
         self.nu = float(cfg.floor_weight) if cfg.floor_weight is not None else data.N / self.T
         self.s = float(cfg.logdet_scale)
+        self.dwell = dwell_limits(data.lengths, self.T, cfg.max_dwell)  # (M,) or None
         if cfg.covariance == "block":  # each group its own block
             self.mask = (group[:, None] == group[None, :]).to(dtype)
         else:
@@ -270,7 +271,7 @@ class EMFitter:
             cost = self.data.pad(step_nll_tensor(f, mu, sigma_inv, self.s))  # (M, S_max, T)
             if band is not None:
                 cost = cost.masked_fill(band, float("inf"))
-            align, values = dtw_align(cost, self.data.lengths, -2.0 * log_trans, self.cfg.offsets)
+            align, values = dtw_align(cost, self.data.lengths, -2.0 * log_trans, self.cfg.offsets, self.dwell)
         return align, values
 
     def total_loss(self, tool, w, mu, sigma_inv, values):

@@ -117,6 +117,12 @@ class FitConfig:
         unconstrained DTW drifts to alignments of higher likelihood that squeeze one
         demonstration's whole pouring phase onto a single broad step; with band 1 every step
         of the 50 Hz pour set keeps one phase (see README, "Learning").
+    max_dwell : the most consecutive samples a demonstration may spend at one step, as a multiple
+        of its mean per step (``ceil(max_dwell * S_m / T)``, ``lfd.learning.dtw.dwell_limits``);
+        None = unlimited, as in the paper. Hard EM reaches a higher likelihood by giving each
+        demonstration's still phase (a pitcher held while it pours: 40-95 samples) a step of
+        its own, so such a step's Gaussian rests on one demonstration; the limit makes every
+        demonstration spread a long phase over several steps, which the others share.
     solver : how the fit optimizes (``SolverSettings``): iteration limits and tolerances, the
         M-step's form, the tool point's starting search, CPU threads. Not what it fits.
     """
@@ -142,6 +148,7 @@ class FitConfig:
     trans_floor: float = 0.01
     init: str = "reference"
     band: int | None = 1
+    max_dwell: float | None = None
     tool_radius: float = 0.5
     solver: SolverSettings = field(default_factory=SolverSettings)
     zeta_prior: Callable | None = field(default=None, compare=False)
@@ -167,6 +174,9 @@ class FitConfig:
             if self.band > int(self.time_steps):
                 raise ValueError(f"FitConfig.band must be at most time_steps ({self.time_steps}) or None "
                                  f"(unconstrained), got {self.band}")
+        if self.max_dwell is not None and not (math.isfinite(self.max_dwell) and self.max_dwell >= 1):
+            raise ValueError(f"FitConfig.max_dwell must be at least 1 (a demonstration's mean samples per "
+                             f"step) or None (unlimited), got {self.max_dwell}")
         if check_whole(self.seed, "FitConfig.seed", 0) >= 2**63:  # numpy and torch both take it
             raise ValueError(f"FitConfig.seed must be a whole number in [0, 2**63), got {self.seed!r}")
         object.__setattr__(self, "subsample", check_stride(self.subsample, "FitConfig.subsample"))

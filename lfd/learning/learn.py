@@ -42,7 +42,15 @@ import numpy as np
 import torch
 
 from lfd.learning.checkpoint import CheckpointError, FitProgress, config_record, demos_fingerprint
-from lfd.learning.dtw import effective_demos, linear_alignment, min_samples, random_alignment, reference_alignments
+from lfd.learning.dtw import (
+    dwell_limits,
+    effective_demos,
+    linear_alignment,
+    min_samples,
+    project_alignments,
+    random_alignment,
+    reference_alignments,
+)
 from lfd.learning.em import EM_FAILURES, EMFitter, FitData
 from lfd.learning.fitconfig import DTYPES, ENV_MODES, INITS, M_STEPS, TOOL_MODES, FitConfig, FitResult
 from lfd.learning.identify import check_learnable, identifiability_notes
@@ -66,6 +74,7 @@ def initial_guesses(seed: int, lengths, time_steps: int, n_landmarks: int, cfg: 
     'reference'`` (see ``FitConfig``)."""
     rng = np.random.default_rng(seed)
     Z = n_landmarks
+    dwell = dwell_limits(lengths, time_steps, cfg.max_dwell)  # the uniform warp keeps any limit >= 1
     if cfg.init == "reference" and series is None:
         raise ValueError("initial_guesses: init='reference' needs the demonstrations' series")
     for r in itertools.count():
@@ -76,11 +85,13 @@ def initial_guesses(seed: int, lengths, time_steps: int, n_landmarks: int, cfg: 
             else:
                 ref = int(rng.integers(len(lengths)))
                 ref_align = random_alignment(lengths[ref], time_steps, rng, cfg.offsets)
-            align = reference_alignments(series, time_steps, ref, ref_align, cfg.offsets)
+            align = reference_alignments(series, time_steps, ref, ref_align, cfg.offsets, dwell=dwell)
         elif r == 0 or cfg.init == "linear":  # the plain uniform time warp (random: first restart only)
             align = [linear_alignment(n, time_steps) for n in lengths]
         else:
             align = [random_alignment(n, time_steps, rng, cfg.offsets) for n in lengths]
+            if dwell is not None:
+                align = project_alignments(align, time_steps, cfg.offsets, dwell)
         if fixed_tool is not None:
             tool0 = np.asarray(fixed_tool, dtype=float)
         else:
