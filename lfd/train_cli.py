@@ -125,7 +125,7 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                         "'none' lets the DTW move freely, as in the paper")
     p.add_argument("--max-dwell", default=None, metavar="X|none",
                    help="most consecutive samples a demonstration may spend at one step, as a multiple of its "
-                        "mean per step (default: none, unlimited as in the paper)")
+                        "mean per step (default: lfd.learning.learn.FitConfig's, 2); 'none' leaves it unlimited, as in the paper")
     p.add_argument("--offsets", type=int, nargs="+", default=None, metavar="K",
                    help="permitted time-step transitions (default: lfd.learning.learn.FitConfig's, 0 1 2)")
     p.add_argument("--floor-task", type=float, default=None, metavar="M",

@@ -119,7 +119,7 @@ class FitConfig:
         of the 50 Hz pour set keeps one phase (see README, "Learning").
     max_dwell : the most consecutive samples a demonstration may spend at one step, as a multiple
         of its mean per step (``ceil(max_dwell * S_m / T)``, ``lfd.learning.dtw.dwell_limits``);
-        None = unlimited, as in the paper. Hard EM reaches a higher likelihood by giving each
+        default 2; None = unlimited, as in the paper. Hard EM reaches a higher likelihood by giving each
         demonstration's still phase (a pitcher held while it pours: 40-95 samples) a step of
         its own, so such a step's Gaussian rests on one demonstration; the limit makes every
         demonstration spread a long phase over several steps, which the others share.
@@ -148,7 +148,7 @@ class FitConfig:
     trans_floor: float = 0.01
     init: str = "reference"
     band: int | None = 1
-    max_dwell: float | None = None
+    max_dwell: float | None = 2.0
     tool_radius: float = 0.5
     solver: SolverSettings = field(default_factory=SolverSettings)
     zeta_prior: Callable | None = field(default=None, compare=False)
