@@ -48,7 +48,11 @@ import torch
 
 from lfd.learning.model import TaskModel, task_features_tensor, task_vectors_tensor
 
-__all__ = ["CallableStepCost", "CostError", "ModelStepCost", "StepCost"]
+__all__ = ["FK_BATCH", "CallableStepCost", "CostError", "ModelStepCost", "StepCost"]
+
+# configurations per forward-kinematics call over a roadmap's quadrature nodes (~160,000 for the
+# pour): the FK's per-link intermediates of all of them at once took a gigabyte
+FK_BATCH = 8192
 
 
 class CostError(ValueError):
@@ -79,7 +83,7 @@ class ModelStepCost:
     Tensors live on the model's dtype and device; ``evaluate`` returns float64 numpy.
     """
 
-    def __init__(self, model: TaskModel, max_batch: int = 8192):
+    def __init__(self, model: TaskModel, max_batch: int = FK_BATCH):
         self.model, self.max_batch = model, int(max_batch)
         S = model.sigma_inv.detach()  # (T, F, F)
         mu = model.mu.detach()  # (T, F)

@@ -47,13 +47,10 @@ from lfd.learning.model import TaskModel
 from lfd.planning.growth import BiasedGrowth
 from lfd.planning.planner import ClosedLoopPlanner, PlanResult
 from lfd.planning.roadmap import Roadmap
-from lfd.planning.stepcost import ModelStepCost
+from lfd.planning.stepcost import FK_BATCH, ModelStepCost
 from lfd.planning.task_settings import TaskPlannerSettings, default_vertices
 
 __all__ = ["TaskPlanner", "TaskPlannerSettings"]  # the settings live in lfd.planning.task_settings
-
-KEYPOINT_BATCH = 8192  # configurations per forward-kinematics call of ``TaskPlanner.keypoints``
-
 
 class TaskPlanner:
     """Plans a learned task around the caller's obstacles.
@@ -188,13 +185,12 @@ class TaskPlanner:
 
     def keypoints(self, Q) -> np.ndarray:
         """``Q (N, d) -> (N, K, 3)``: the arm's link origins and the tool point, world frame
-        (in batches of ``KEYPOINT_BATCH``: the FK's per-link intermediates of the ~160,000
-        quadrature nodes of a pour roadmap at once took a gigabyte)."""
+        (in batches of ``lfd.planning.stepcost.FK_BATCH`` configurations)."""
         Q = torch.as_tensor(np.array(Q, dtype=float), dtype=self.model.dtype, device=self.model.device)
         out = []
         with torch.no_grad():
             Q = Q.reshape(-1, self.kin.dof)
-            for Qb in torch.split(Q, KEYPOINT_BATCH) or (Q,):  # (an empty Q is one empty batch)
+            for Qb in torch.split(Q, FK_BATCH) or (Q,):  # (an empty Q is one empty batch)
                 origins, T_world_ee = self.kin.frame_origins(Qb)  # (B, L, 3), (B, 4, 4)
                 tool = T_world_ee[:, :3, :3] @ self.model.tool.detach() + T_world_ee[:, :3, 3]
                 out.append(torch.cat([origins, tool[:, None]], dim=1).cpu().numpy())
