@@ -296,7 +296,7 @@ def _summary(result, ds, cfg, n_obs: int) -> dict:
     summary = {"learning_time_s": result.timings["total_s"], "n_demos": len(ds.demos),
                "n_observations": n_obs, "subsample": cfg.subsample, "dt": float(m.task.dt) if m.task else None,
                "features": cfg.features, "time_steps": cfg.time_steps, "restarts": cfg.restarts,
-               "covariance": cfg.covariance, "seed": cfg.seed, "final_loss": result.final_loss,
+               "covariance": cfg.covariance, "max_dwell": cfg.max_dwell, "seed": cfg.seed, "final_loss": result.final_loss,
                "restart_losses": [x if np.isfinite(x) else None for x in result.restart_losses],
                "em_iterations": list(result.em_iterations), "best_restart": result.best_restart,
                "resumed_restarts": result.resumed_restarts,

@@ -325,6 +325,21 @@ def test_the_task_json_stride_is_the_default_and_subsample_overrides_it(synth_di
     assert f"(1 in 2 of {n_raw}) at dt {2 * task.dt:g} s" in capsys.readouterr().out
 
 
+def test_max_dwell_option_reaches_the_fit_and_the_summary(synth_dir, tmp_path, capsys):
+    """``--max-dwell`` sets ``FitConfig.max_dwell`` (``none``: unlimited, the paper's DTW), the
+    summary records it, and a value below 1 is a usage error naming the option."""
+    for value, want in (([], 2.0), (["--max-dwell", "none"], None), (["--max-dwell", "3"], 3.0)):
+        out = tmp_path / f"out{want}"
+        assert _train_main(["--task", "powder", "--demos", str(synth_dir), "--out", str(out),
+                            "--restarts", "1", "--time-steps", "5", *value]) == 0
+        assert json.loads((out / "summary.json").read_text())["max_dwell"] == want
+    capsys.readouterr()
+    for bad, fragment in (("0.5", "FitConfig.max_dwell must be at least 1"), ("two", "--max-dwell must be a number")):
+        assert _train_main(["--task", "powder", "--demos", str(synth_dir), "--out", str(tmp_path / "bad"),
+                            "--restarts", "1", "--time-steps", "5", "--max-dwell", bad]) == 2
+        assert fragment in capsys.readouterr().err
+
+
 # ----------------------------------------------------------------------------- command-line conventions
 def _parsers():
     from lfd import train_cli
