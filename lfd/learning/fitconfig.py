@@ -120,7 +120,7 @@ class FitConfig:
     max_dwell : the most consecutive samples a demonstration may spend at one step, as a multiple
         of its mean per step (``ceil(max_dwell * S_m / T)``, ``lfd.learning.dtw.dwell_limits``);
         default 2; None = unlimited, as in the paper. Hard EM reaches a higher likelihood by giving each
-        demonstration's still phase (a pitcher held while it pours: 40-95 samples) a step of
+        demonstration's still phase (a pitcher held while it pours: 40-97 samples) a step of
         its own, so such a step's Gaussian rests on one demonstration; the limit makes every
         demonstration spread a long phase over several steps, which the others share.
     solver : how the fit optimizes (``SolverSettings``): iteration limits and tolerances, the
