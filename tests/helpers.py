@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
+
+
+def longest_stay(alignment) -> int:
+    """The most consecutive samples an alignment ``(S,)`` keeps on one step."""
+    return max(len(list(g)) for _, g in itertools.groupby(alignment))
 
 
 def rewrite_npz(path: Path, **changes) -> None:

@@ -8,11 +8,7 @@ import torch
 
 from lfd.learning.dtw import alignment_step_counts, dtw_align, min_samples, random_alignment, reference_alignments
 from lfd.learning.priors import estimate_log_trans
-
-
-def _longest_stay(path):
-    runs = [len(list(g)) for _, g in itertools.groupby(path)]
-    return max(runs)
+from helpers import longest_stay
 
 
 def _brute_force(cost, trans, offsets, dwell=None):
@@ -28,7 +24,7 @@ def _brute_force(cost, trans, offsets, dwell=None):
             total += trans[path[-1], k] + cost[s, t]
             path.append(t)
         else:
-            if path[-1] == T - 1 and total < best and (dwell is None or _longest_stay(path) <= dwell):
+            if path[-1] == T - 1 and total < best and (dwell is None or longest_stay(path) <= dwell):
                 best, best_path = total, path
     return best, best_path
 
@@ -69,8 +65,8 @@ def test_dwell_limited_dtw_equals_brute_force(seed):
         best, path = _brute_force(cost[m, :n], trans, offsets, dwell[m])
         assert values[m].item() == pytest.approx(best, rel=1e-12)
         assert align[m].tolist() == path
-        assert _longest_stay(path) <= dwell[m]
-    assert any(_longest_stay(a) > d for a, d in zip(free, dwell))  # the limit was binding
+        assert longest_stay(path) <= dwell[m]
+    assert any(longest_stay(a) > d for a, d in zip(free, dwell))  # the limit was binding
 
 
 def test_dwell_limit_rejects_demonstrations_it_cannot_hold():

@@ -54,7 +54,7 @@ def test_config_options_are_validated():
 def test_dwell_limit_holds_in_every_start_and_in_the_fit(synth, kin, init):
     """Every restart's start and the fitted alignments keep each demonstration at most
     ``ceil(max_dwell * S_m / T)`` consecutive samples on a step, whatever the starts."""
-    import itertools
+    from helpers import longest_stay
 
     from lfd.learning.dtw import dwell_limits
 
@@ -65,18 +65,15 @@ def test_dwell_limit_holds_in_every_start_and_in_the_fit(synth, kin, init):
     limit = dwell_limits(lengths, T_STEPS, cfg.max_dwell)
     assert limit == [math.ceil(1.2 * n / T_STEPS) for n in lengths]
 
-    def longest(a):
-        return max(len(list(g)) for _, g in itertools.groupby(a))
-
     guesses = initial_guesses(0, lengths, T_STEPS, len(ds.landmark_names), cfg, series=[d.q for d in ds.demos])
     for _ in range(3):
         align0, _, _ = next(guesses)
-        assert all(longest(a) <= d and a[0] == 0 and a[-1] == T_STEPS - 1 for a, d in zip(align0, limit))
+        assert all(longest_stay(a) <= d and a[0] == 0 and a[-1] == T_STEPS - 1 for a, d in zip(align0, limit))
     res = fit(ds, kin, cfg)
-    assert all(longest(a) <= d for a, d in zip(res.alignments, limit))
+    assert all(longest_stay(a) <= d for a, d in zip(res.alignments, limit))
     free = fit(ds, kin, FitConfig(time_steps=T_STEPS, init=init, max_dwell=None, restarts=2, seed=1,
                                   solver=SolverSettings(max_em_iters=4)))
-    assert any(longest(a) > d for a, d in zip(free.alignments, limit))  # the limit was binding
+    assert any(longest_stay(a) > d for a, d in zip(free.alignments, limit))  # the limit was binding
 
 
 @pytest.mark.parametrize("band", [0, 1, 3])

@@ -128,7 +128,8 @@ def dtw_align(cost: torch.Tensor, lengths, trans_cost: torch.Tensor, offsets=(0,
         active = (lengths_t > s)[:, None, None]
         value = torch.where(active, new, value)
         args[s] = arg.to(torch.int8)
-        came[s] = torch.cat([pad_d, dmin], dim=1)[:, gather].gather(2, arg[..., None])[..., 0].to(torch.int16)
+        if dwell is not None:  # without a limit every state has d = 0
+            came[s] = torch.cat([pad_d, dmin], dim=1)[:, gather].gather(2, arg[..., None])[..., 0].to(torch.int16)
     values, d_end = value[:, T - 1].min(dim=1)
     if not torch.isfinite(values).all():
         bad = torch.nonzero(~torch.isfinite(values)).flatten().tolist()

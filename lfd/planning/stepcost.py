@@ -103,7 +103,7 @@ class ModelStepCost:
         # joints and task features coupled (a full covariance): beta' per configuration; else one
         # (T, 3k) for all (block covariances: S_x^T S_q = 0)
         self._coupled = bool((self._S_x.transpose(1, 2) @ self._S_q != 0).any())
-        self._beta_all = (-self._Gmu).T.contiguous()  # (3k, T) beta' when not coupled
+        self._beta_all = None if self._coupled else (-self._Gmu).T.contiguous()  # (3k, T)
 
     def prepare(self, Q) -> tuple[torch.Tensor, ...]:
         """``Q (N, d)`` -> world vectors ``P (N, k, 3)``, ``alpha' (N, T)`` and, when joints and
@@ -136,7 +136,7 @@ class ModelStepCost:
             # of a pour roadmap, 60 MB, costs its page faults: the evaluation took twice as long)
             x = task_features_tensor(P, K)  # (N, 3k)
             out = torch.addmm(alpha, x[:, i] * x[:, j], self._Gtri)  # alpha' + quadratic form, (N, T)
-            if self._coupled:
+            if self._beta_all is None:  # coupled: beta' per configuration
                 out += 2.0 * torch.bmm(parts[2], x[:, :, None])[..., 0]
             else:
                 out.addmm_(x, self._beta_all, alpha=2.0)
