@@ -127,7 +127,8 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                    help="most consecutive samples a demonstration may spend at one step, as a multiple of its "
                         "mean per step (default: lfd.learning.learn.FitConfig's, 2); 'none' leaves it unlimited, as in the paper")
     p.add_argument("--offsets", type=int, nargs="+", default=None, metavar="K",
-                   help="permitted time-step transitions (default: lfd.learning.learn.FitConfig's, 0 1 2)")
+                   help="permitted time-step transitions t -> t + K: with 0 1 every demonstration visits every "
+                        "step, 0 1 2 lets the alignment skip steps (default: lfd.learning.learn.FitConfig's, 0 1)")
     p.add_argument("--floor-task", type=float, default=None, metavar="M",
                    help="variance floor of the tool-point features, a standard deviation in metres "
                         "(lfd.learning.priors; default: lfd.learning.learn.FitConfig's, 0.001)")

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from lfd.learning.dtw import min_samples
 from lfd.learning.em import EMFitter, FitData
 from lfd.learning.fitconfig import SolverSettings
 from lfd.learning.learn import FitConfig, fit, initial_guesses
@@ -183,7 +184,7 @@ def test_fit_recovers_tool_point_and_landmark(synth, kin):
     np.testing.assert_allclose(res.effective_demos, effective_demos(res.alignments, T_STEPS))
     assert np.median(res.effective_demos) > len(ds.demos) / 3
     assert not any("rest on few demonstrations" in w for w in res.warnings)
-    assert np.isfinite(m.log_trans.exp().numpy()).all() and (m.log_trans.exp() > 0).sum() == 3 * T_STEPS - 3
+    assert np.isfinite(m.log_trans.exp().numpy()).all() and (m.log_trans.exp() > 0).sum() == sum(T_STEPS - k for k in m.offsets)
     for hist in res.loss_history:  # EM never increases the objective
         assert all(b <= a + 1e-6 for a, b in zip(hist, hist[1:]))
     # deterministic for a seed
@@ -216,7 +217,8 @@ def test_subsample_fits_every_kth_sample_at_k_times_dt(kin):
     assert np.linalg.norm(a.model.tool.numpy() - truth.tool) < 0.02
     with pytest.raises(ValueError, match="FitConfig.subsample"):
         FitConfig(subsample=0)
-    with pytest.raises(ValueError, match=r"fewer than 5 samples after keeping 1 sample in 20 \(FitConfig.subsample\)"):
+    need = min_samples(T_STEPS, cfg.offsets)  # 8 steps: 8 samples with (0, 1), 5 with (0, 1, 2)
+    with pytest.raises(ValueError, match=rf"fewer than {need} samples after keeping 1 sample in 20 \(FitConfig.subsample\)"):
         fit(ds, kin, FitConfig(**{**cfg.__dict__, "subsample": 20}))
 
 
