@@ -187,7 +187,8 @@ def _check_inputs(demoset, cfg: FitConfig) -> None:
     if short:
         stride = f" after keeping 1 sample in {cfg.subsample} (FitConfig.subsample)" if cfg.subsample > 1 else ""
         raise ValueError(f"demonstration(s) {short} have fewer than {need} samples{stride}, too few for "
-                         f"{cfg.time_steps} time steps with offsets {cfg.offsets}")
+                         f"{cfg.time_steps} time steps with offsets {cfg.offsets} (fewer time steps, or offsets "
+                         "that may skip a step, e.g. train.py --offsets 0 1 2, need fewer)")
     if (cfg.tool == "tip" or cfg.env == "bowl") and demoset.task is None:
         raise ValueError(f"tool={cfg.tool!r}, env={cfg.env!r} need the demonstrations' task.json")
 
