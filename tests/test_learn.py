@@ -179,6 +179,9 @@ def test_fit_recovers_tool_point_and_landmark(synth, kin):
     assert all(torch.isfinite(x).all() for x in (m.mu, m.sigma_inv, m.tool))
     assert len(res.restart_losses) == 3 and res.final_loss <= min(res.restart_losses) + 1e-9
     assert all(a[0] == 0 and a[-1] == T_STEPS - 1 for a in res.alignments)
+    # the default permits no skip: every demonstration visits every step, one step at a time
+    assert m.offsets == (0, 1)
+    assert all(set(np.diff(a).tolist()) <= {0, 1} and set(a.tolist()) == set(range(T_STEPS)) for a in res.alignments)
     # the synthetic demonstrations share every step: no demonstration has steps of its own
     from lfd.learning.dtw import effective_demos
     np.testing.assert_allclose(res.effective_demos, effective_demos(res.alignments, T_STEPS))
