@@ -148,6 +148,7 @@ sys.path.insert(0, {tests!r})
 from pathlib import Path
 import sim.evaluate as ev, sweep_fakes
 ev.draw_scenarios, ev.run_one = sweep_fakes.draw, sweep_fakes.run
+sweep_fakes.SLEEP_S = 0.5  # the forked workers see it: the six runs left after the fourth take ~1.5 s, time for Ctrl-C
 settings = ev.EvalSettings(task="powder", n_scenarios=5, seeds=(0, 1), roadmap_size=10, workers=2,
                            variants=("learned+learned",), latency="none")
 ev.evaluate(settings, Path({out!r}), Path({models!r}), resume=True)
@@ -172,8 +173,8 @@ def test_a_sweep_killed_half_way_resumes_to_the_uninterrupted_results(tmp_path, 
     assert proc.poll() is None, proc.communicate()
     os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C reaches the driver and its workers
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode != 0 and "KeyboardInterrupt" in err
     lines = log.read_text().splitlines()
+    assert proc.returncode != 0 and "KeyboardInterrupt" in err, (proc.returncode, len(lines), err[-2000:])
     assert 4 <= len(lines) < 10 and not (out / "results.json").exists()  # half way, nothing summarized
 
     resumed = ev.evaluate(replace(_settings(), workers=2), out, models, resume=True)
