@@ -143,12 +143,16 @@ def test_crashed_runs_are_logged_counted_apart_and_run_again_on_resume(tmp_path,
 
 
 _SWEEP = """
-import sys
+import signal, sys
+# Ctrl-C as a terminal delivers it: the test process may run with SIGINT ignored (set by a C
+# library earlier in the suite), and an ignored signal stays ignored across exec (seen: the
+# sweep ran all ten runs after the signal and exited 0)
+signal.signal(signal.SIGINT, signal.default_int_handler)
+signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT])
 sys.path.insert(0, {tests!r})
 from pathlib import Path
 import sim.evaluate as ev, sweep_fakes
 ev.draw_scenarios, ev.run_one = sweep_fakes.draw, sweep_fakes.run
-sweep_fakes.SLEEP_S = 0.5  # the forked workers see it: the six runs left after the fourth take ~1.5 s, time for Ctrl-C
 settings = ev.EvalSettings(task="powder", n_scenarios=5, seeds=(0, 1), roadmap_size=10, workers=2,
                            variants=("learned+learned",), latency="none")
 ev.evaluate(settings, Path({out!r}), Path({models!r}), resume=True)
