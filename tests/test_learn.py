@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from helpers import longest_stay
 from lfd.learning.dtw import min_samples
 from lfd.learning.em import EMFitter, FitData
 from lfd.learning.fitconfig import SolverSettings
@@ -55,8 +56,6 @@ def test_config_options_are_validated():
 def test_dwell_limit_holds_in_every_start_and_in_the_fit(synth, kin, init):
     """Every restart's start and the fitted alignments keep each demonstration at most
     ``ceil(max_dwell * S_m / T)`` consecutive samples on a step, whatever the starts."""
-    from helpers import longest_stay
-
     from lfd.learning.dtw import dwell_limits
 
     ds, _ = synth

@@ -102,8 +102,8 @@ class ModelStepCost:
         self._Gtri = (G[:, i, j] * torch.where(i == j, 1.0, 2.0).to(G)).T.contiguous()  # (m, T)
         # joints and task features coupled (a full covariance): beta' per configuration; else one
         # (T, 3k) for all (block covariances: S_x^T S_q = 0)
-        self._coupled = bool((self._S_x.transpose(1, 2) @ self._S_q != 0).any())
-        self._beta_all = None if self._coupled else (-self._Gmu).T.contiguous()  # (3k, T)
+        coupled = bool((self._S_x.transpose(1, 2) @ self._S_q != 0).any())
+        self._beta_all = None if coupled else (-self._Gmu).T.contiguous()  # (3k, T); None: coupled
 
     def prepare(self, Q) -> tuple[torch.Tensor, ...]:
         """``Q (N, d)`` -> world vectors ``P (N, k, 3)``, ``alpha' (N, T)`` and, when joints and
@@ -113,7 +113,7 @@ class ModelStepCost:
         N, n = len(Q), self._mu_x.shape[1]
         P = Q.new_empty(N, n // 3, 3)
         alpha = Q.new_empty(N, self.T)
-        beta = Q.new_empty(N, self.T, n) if self._coupled else None
+        beta = Q.new_empty(N, self.T, n) if self._beta_all is None else None  # coupled: per configuration
         with torch.no_grad():
             for s in range(0, N, self.max_batch):  # filled in place: no second copy of the parts
                 rows = slice(s, min(s + self.max_batch, N))
