@@ -6,7 +6,7 @@ Value recursion (costs in Eq. 3 units, 0-based steps here, 1-based in the paper)
     l^s[t'] = min_k (l^{s-1}[t' - o_k] + C_trans[t' - o_k, k]) + c(s, t')
 
 and every alignment ends at the last step ``T - 1``. ``o_k`` are the permitted offsets
-(``(0, 1, 2)`` by default) and ``C_trans = -2 log p(t + o_k | t)``. With a dwell limit
+(``OFFSETS`` by default: stay, advance, or skip one step) and ``C_trans = -2 log p(t + o_k | t)``. With a dwell limit
 (``FitConfig.max_dwell``) the value is kept per step and samples stayed, ``l^s[t', d]``: a stay
 moves ``d`` to ``d + 1`` up to the demonstration's limit, any other offset arrives with ``d = 0``.
 The loop runs over samples only; time steps and demonstrations are vectorized (demonstrations
@@ -20,7 +20,10 @@ import math
 import numpy as np
 import torch
 
+OFFSETS = (0, 1, 2)  # the permitted step offsets unless told otherwise (a TaskModel's default too)
+
 __all__ = [
+    "OFFSETS",
     "alignment_step_counts",
     "dtw_align",
     "dwell_limits",
@@ -34,7 +37,7 @@ __all__ = [
 ]
 
 
-def min_samples(time_steps: int, offsets=(0, 1, 2)) -> int:
+def min_samples(time_steps: int, offsets=OFFSETS) -> int:
     """Fewest samples that can run from the first to the last step."""
     step = max(offsets)
     return 1 + -(-(time_steps - 1) // step)
@@ -48,7 +51,7 @@ def dwell_limits(lengths, time_steps: int, max_dwell: float | None) -> list[int]
     return [max(1, math.ceil(max_dwell * int(n) / time_steps)) for n in lengths]
 
 
-def dtw_align(cost: torch.Tensor, lengths, trans_cost: torch.Tensor, offsets=(0, 1, 2), dwell=None):
+def dtw_align(cost: torch.Tensor, lengths, trans_cost: torch.Tensor, offsets=OFFSETS, dwell=None):
     """Best alignment of each demonstration.
 
     Parameters
@@ -165,7 +168,7 @@ def linear_alignment(n_samples: int, time_steps: int) -> np.ndarray:
 
 
 def random_alignment(n_samples: int, time_steps: int, rng: np.random.Generator,
-                     offsets=(0, 1, 2)) -> np.ndarray:
+                     offsets=OFFSETS) -> np.ndarray:
     """A random monotone alignment ``(n_samples,)`` from step 0 to ``time_steps - 1``.
 
     Steps advance at ``time_steps - 1`` of the ``n_samples - 1`` transitions, drawn without
@@ -190,7 +193,7 @@ def random_alignment(n_samples: int, time_steps: int, rng: np.random.Generator,
     return np.concatenate([[0], np.cumsum(inc)])
 
 
-def reference_alignments(series, time_steps: int, ref: int, ref_alignment=None, offsets=(0, 1, 2),
+def reference_alignments(series, time_steps: int, ref: int, ref_alignment=None, offsets=OFFSETS,
                          max_points: int | None = None, dwell=None) -> list[np.ndarray]:
     """Consistent starting alignments: every demonstration warped onto one reference by DTW.
 
@@ -245,7 +248,7 @@ def reference_alignments(series, time_steps: int, ref: int, ref_alignment=None, 
     return project_alignments(want, time_steps, offsets, dwell)
 
 
-def project_alignments(want, time_steps: int, offsets=(0, 1, 2), dwell=None) -> list[np.ndarray]:
+def project_alignments(want, time_steps: int, offsets=OFFSETS, dwell=None) -> list[np.ndarray]:
     """The permitted alignments closest to ``want`` (M arrays ``(S_m,)`` of steps, any values) in
     squared step error: from step 0 to ``time_steps - 1`` by ``offsets``, and at most ``dwell[m]``
     consecutive samples per step when ``dwell`` is given (see ``dtw_align``)."""
@@ -264,7 +267,7 @@ def _padded(rows) -> torch.Tensor:
     return out
 
 
-def alignment_step_counts(alignments, time_steps: int, offsets=(0, 1, 2)) -> np.ndarray:
+def alignment_step_counts(alignments, time_steps: int, offsets=OFFSETS) -> np.ndarray:
     """``(T, K)`` counts of transitions from each step by each offset."""
     counts = np.zeros((time_steps, len(offsets)))
     index = {int(k): i for i, k in enumerate(offsets)}

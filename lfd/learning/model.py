@@ -34,6 +34,7 @@ from pathlib import Path
 import torch
 
 from lfd.errors import UserInputError
+from lfd.learning.dtw import OFFSETS
 from lfd.learning.tasks import FEATURE_SETS, TASK_VECTORS, TaskSpec
 from lfd.robot.robots import RobotSpec
 
@@ -55,7 +56,6 @@ __all__ = [
 ]
 
 COVARIANCES = ("full", "block")
-OFFSETS = (0, 1, 2)
 FORMAT = "lfd-task-model/1"
 
 
