@@ -55,9 +55,11 @@ def timing(args) -> dict:
     out = {}
     for task in ("powder", "pour"):
         ds, source = task_demos(task, kin)
-        cfg = FitConfig(time_steps=ds.task.time_steps if ds.task else 24,
-                        subsample=ds.task.subsample if ds.task else 1,  # as train.py learns it
-                        **({"restarts": args.restarts} if args.restarts else {}))
+        restarts = args.restarts or (ds.task.restarts if ds.task else None)
+        cfg = FitConfig(time_steps=ds.task.time_steps if ds.task else 24,  # as train.py learns it
+                        subsample=ds.task.subsample if ds.task else 1,
+                        features=ds.task.features if ds.task else "paper",
+                        **({"restarts": restarts} if restarts else {}))
         times, losses = [], []
         for r in range(args.runs):
             t = time.perf_counter()
@@ -106,7 +108,7 @@ def compare(args) -> dict:
 def main(argv=None) -> int:
     p = ArgumentParser(prog="benchmarks/learning.py", description="lfd learning benchmarks")
     p.add_argument("--runs", type=int, default=3, help="timed fits per task (the median is reported)")
-    p.add_argument("--restarts", type=int, default=None, help="restarts per fit (default: FitConfig's)")
+    p.add_argument("--restarts", type=int, default=None, help="restarts per fit (default: the task.json's, else FitConfig's)")
     p.add_argument("--compare", action="store_true", help="full vs block covariance on known truth")
     p.add_argument("--seeds", type=int, default=3, help="synthetic data sets per kind (--compare)")
     args = p.parse_args(argv)

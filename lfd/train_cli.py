@@ -100,7 +100,8 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                    help="environment landmark: learned weights over the sensed landmarks, or manual (the "
                         "task's reference landmark, the bowl); learn, bowl are accepted as the same")
     p.add_argument("--restarts", type=int, default=None, metavar="N",
-                   help="EM restarts from different starts (default: lfd.learning.learn.FitConfig's, 4)")
+                   help="EM restarts from different starts (default: the task.json's restarts, else "
+                        "lfd.learning.learn.FitConfig's, 12; the built-in pour: 4)")
     p.add_argument("--time-steps", type=int, default=None, metavar="T",
                    help="time steps of the model (default: the task.json's, 24 without one)")
     p.add_argument("--subsample", type=int, default=None, metavar="K",
@@ -277,6 +278,8 @@ def _fit_config(args, ds, demos_dir: Path):
     kw["time_steps"] = args.time_steps or (ds.task.time_steps if ds.task else 24)
     kw["subsample"] = args.subsample or (ds.task.subsample if ds.task else 1)
     kw["features"] = args.features or (ds.task.features if ds.task else "paper")
+    if args.restarts is None and ds.task is not None and ds.task.restarts is not None:
+        kw["restarts"] = ds.task.restarts
     if args.floor_attitude is not None and kw["features"] != "attitude":
         raise UsageError(f"--floor-attitude applies to the attitude features; this model is learned in the "
                          f"{kw['features']!r} features (--features attitude, or the task.json's 'features')")

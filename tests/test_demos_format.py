@@ -196,6 +196,20 @@ def test_task_subsample_round_trips_and_is_checked(tmp_path):
             replace(POUR, subsample=bad)
 
 
+def test_task_restarts_round_trip_and_are_checked(tmp_path):
+    """``TaskSpec.restarts``: saved and loaded; None (FitConfig's) for a task.json without it."""
+    from lfd.learning.tasks import POUR, POWDER, TaskSpec
+    POWDER.save(tmp_path / "task.json")
+    assert TaskSpec.load(tmp_path / "task.json").restarts is None
+    assert TaskSpec.from_dict(replace(POUR, restarts=np.int64(7)).to_dict()).restarts == 7
+    old = POUR.to_dict()
+    del old["restarts"]
+    assert TaskSpec.from_dict(old).restarts is None
+    for bad in (0, 2.5, True, "4"):
+        with pytest.raises(ValueError, match="TaskSpec.restarts must be a whole number >= 1"):
+            replace(POUR, restarts=bad)
+
+
 def test_every_stride_option_takes_numpy_integers_and_refuses_the_rest():
     # one rule for DemoSet.subsample, TaskSpec.subsample and FitConfig.subsample: a stride read
     # from an array (np.int64) is a whole number and is stored as a plain int (JSON-serialisable)

@@ -325,6 +325,24 @@ def test_the_task_json_stride_is_the_default_and_subsample_overrides_it(synth_di
     assert f"(1 in 2 of {n_raw}) at dt {2 * task.dt:g} s" in capsys.readouterr().out
 
 
+def test_the_task_json_restarts_are_the_default_and_restarts_overrides_them(synth_dir, tmp_path):
+    """A task.json's ``restarts`` is what train.py runs unless ``--restarts`` says otherwise;
+    without one, FitConfig's default."""
+    from lfd.learning.learn import FitConfig
+    from lfd.learning.tasks import TaskSpec
+    demos = tmp_path / "demos"
+    shutil.copytree(synth_dir, demos)
+    task = TaskSpec.load(demos / "task.json")
+    assert task.restarts is None
+    for restarts, extra, want in ((3, [], 3), (3, ["--restarts", "2"], 2), (None, [], FitConfig().restarts)):
+        replace(task, restarts=restarts).save(demos / "task.json")
+        out = tmp_path / f"out{restarts}{len(extra)}"
+        assert _train_main(["--task", "powder", "--demos", str(demos), "--out", str(out), "--time-steps", "5",
+                            *extra]) == 0
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["restarts"] == want and len(summary["restart_losses"]) == want
+
+
 def test_max_dwell_option_reaches_the_fit_and_the_summary(synth_dir, tmp_path, capsys):
     """``--max-dwell`` sets ``FitConfig.max_dwell`` (``none``: unlimited, the paper's DTW), the
     summary records it, and a value below 1 is a usage error naming the option."""
