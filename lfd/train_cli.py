@@ -100,8 +100,8 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                    help="environment landmark: learned weights over the sensed landmarks, or manual (the "
                         "task's reference landmark, the bowl); learn, bowl are accepted as the same")
     p.add_argument("--restarts", type=int, default=None, metavar="N",
-                   help="EM restarts from different starts (default: the task.json's restarts, else "
-                        "lfd.learning.learn.FitConfig's, 12; the built-in pour: 4)")
+                   help="EM restarts from different starts (default: the task.json's restarts, the built-in "
+                        "pour's 4, else lfd.learning.learn.FitConfig's, 12)")
     p.add_argument("--time-steps", type=int, default=None, metavar="T",
                    help="time steps of the model (default: the task.json's, 24 without one)")
     p.add_argument("--subsample", type=int, default=None, metavar="K",
