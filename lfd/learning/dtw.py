@@ -6,7 +6,8 @@ Value recursion (costs in Eq. 3 units, 0-based steps here, 1-based in the paper)
     l^s[t'] = min_k (l^{s-1}[t' - o_k] + C_trans[t' - o_k, k]) + c(s, t')
 
 and every alignment ends at the last step ``T - 1``. ``o_k`` are the permitted offsets
-(``OFFSETS`` by default: stay, advance, or skip one step) and ``C_trans = -2 log p(t + o_k | t)``. With a dwell limit
+(``OFFSETS`` by default: stay, advance, or skip one step; the learner passes its own,
+``FitConfig.offsets``) and ``C_trans = -2 log p(t + o_k | t)``. With a dwell limit
 (``FitConfig.max_dwell``) the value is kept per step and samples stayed, ``l^s[t', d]``: a stay
 moves ``d`` to ``d + 1`` up to the demonstration's limit, any other offset arrives with ``d = 0``.
 The loop runs over samples only; time steps and demonstrations are vectorized (demonstrations

@@ -110,10 +110,11 @@ class FitConfig:
         determine (the gripper never turned about that axis, ``lfd.learning.identify``) stays on
         the tool instead of drifting off to metres; inside it the objective is the paper's.
     trans_floor : smallest probability of a permitted transition.
-    restarts : EM runs from different starts (``init``); the best by loss is kept. Each is a local
-        optimum of hard EM, and their losses spread widely (powder demonstrations aimed with
-        another task point, attitude features: -68.8 to -79.6 per observation over 12): with the first 4 the best
-        left two demonstrations' dumps 3-5 steps away from the others' (docs/EXPERIMENTS.md).
+    restarts : EM runs from different starts (``init``); the best by loss is kept. Each ends in a
+        local optimum of hard EM, and their losses spread widely (powder demonstrations aimed
+        with another task point: -39.5 to -44.7 per observation over 12): the best of the first
+        4 left two demonstrations' dumps on other steps than the rest's, the best of 12 aligned
+        them all (docs/EXPERIMENTS.md).
     init : how each restart's first alignments are drawn. 'reference' (default): every
         demonstration is warped by DTW of its joint angles onto one reference demonstration
         (the median-length one, uniformly split into steps, for the first restart; a random

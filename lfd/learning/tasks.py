@@ -139,7 +139,7 @@ POWDER = TaskSpec(name="powder", dt=0.1, time_steps=24, manual_tool_point=(0.0, 
 # Learned with the gripper's attitude (features='attitude'): in the paper's feature space the plans
 # tilted the pitcher 7-13 deg less than the demonstrations (the roll is cheap in the learned joint
 # metric) and poured 75-83% for two of three demonstration draws (docs/EXPERIMENTS.md, issue 24).
-# 4 EM restarts, not FitConfig's 12: a restart of the pour (about 2,300 observations at 25 Hz, 48
+# 4 EM restarts, not FitConfig's 12: a restart of the pour (about 4,600 observations at 25 Hz, 48
 # steps) takes 4-5 s, and with 4 the pour reached 98% / 98% / 90% on three demonstration draws
 # (docs/RESULTS.md) in 18-22 s of learning.
 POUR = TaskSpec(name="pour", dt=0.02, time_steps=48, manual_tool_point=(-0.08, 0.07, 0.135), subsample=2,
