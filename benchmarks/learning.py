@@ -55,11 +55,8 @@ def timing(args) -> dict:
     out = {}
     for task in ("powder", "pour"):
         ds, source = task_demos(task, kin)
-        restarts = args.restarts or (ds.task.restarts if ds.task else None)
-        cfg = FitConfig(time_steps=ds.task.time_steps if ds.task else 24,  # as train.py learns it
-                        subsample=ds.task.subsample if ds.task else 1,
-                        features=ds.task.features if ds.task else "paper",
-                        **({"restarts": restarts} if restarts else {}))
+        kw = ds.task.fit_defaults() if ds.task else {}  # as train.py learns it
+        cfg = FitConfig(**{**kw, **({"restarts": args.restarts} if args.restarts else {})})
         times, losses = [], []
         for r in range(args.runs):
             t = time.perf_counter()

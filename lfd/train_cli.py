@@ -258,7 +258,8 @@ def _fit_config(args, ds, demos_dir: Path):
     from lfd.learning.learn import FitConfig
 
     kw = {"tool": args.tool, "env": args.env, "seed": args.seed, "device": args.device}
-    for key, val in (("restarts", args.restarts), ("covariance", args.covariance), ("init", args.init),
+    for key, val in (("restarts", args.restarts), ("time_steps", args.time_steps), ("subsample", args.subsample),
+                     ("features", args.features), ("covariance", args.covariance), ("init", args.init),
                      ("offsets", tuple(args.offsets) if args.offsets else None),
                      ("floor_task", args.floor_task), ("floor_joint", args.floor_joint),
                      ("floor_attitude", args.floor_attitude),
@@ -275,15 +276,13 @@ def _fit_config(args, ds, demos_dir: Path):
             kw["max_dwell"] = None if args.max_dwell.lower() == "none" else float(args.max_dwell)
         except ValueError:
             raise UsageError(f"--max-dwell must be a number (>= 1) or 'none', got {args.max_dwell!r}") from None
-    kw["time_steps"] = args.time_steps or (ds.task.time_steps if ds.task else 24)
-    kw["subsample"] = args.subsample or (ds.task.subsample if ds.task else 1)
-    kw["features"] = args.features or (ds.task.features if ds.task else "paper")
-    if args.restarts is None and ds.task is not None and ds.task.restarts is not None:
-        kw["restarts"] = ds.task.restarts
-    if args.floor_attitude is not None and kw["features"] != "attitude":
+    for key, val in (ds.task.fit_defaults() if ds.task else {}).items():  # what the options leave to the task
+        kw.setdefault(key, val)
+    features = kw.get("features", FitConfig.features)
+    if args.floor_attitude is not None and features != "attitude":
         raise UsageError(f"--floor-attitude applies to the attitude features; this model is learned in the "
-                         f"{kw['features']!r} features (--features attitude, or the task.json's 'features')")
-    if kw["subsample"] > 1 and ds.task is None:
+                         f"{features!r} features (--features attitude, or the task.json's 'features')")
+    if kw.get("subsample", 1) > 1 and ds.task is None:
         raise UsageError(f"--subsample {kw['subsample']}: {demos_dir} has no task.json, where the model's "
                          f"sampling interval is kept; add one (lfd.learning.tasks.TaskSpec) or leave --subsample out")
     try:

@@ -79,7 +79,7 @@ class FitConfig:
     offsets : the permitted time-step transitions ``t -> t + k`` (the paper fixes a set and
         estimates their probabilities; it does not name the set). Default ``(0, 1)``: every
         demonstration visits every step, so no step is left to the one or two demonstrations
-        that did not skip it. With ``(0, 1, 2)`` (the model's default set, ``lfd.learning.model.OFFSETS``)
+        that did not skip it. With ``(0, 1, 2)`` (the model's default set, ``lfd.learning.dtw.OFFSETS``)
         hard EM skipped steps to give them to single demonstrations; measured on the pour's
         draw 2 (docs/EXPERIMENTS.md): steps resting on one demonstration whose joint covariance
         made every other arm posture cost 10^5, and 84% -> 90% of the 50 pour scenes with (0, 1).

@@ -101,6 +101,14 @@ class TaskSpec:
             raise ValueError(f"TaskSpec.reference_landmark must be a landmark's name, got "
                              f"{self.reference_landmark!r}")
 
+    def fit_defaults(self) -> dict:
+        """The ``FitConfig`` fields a fit of this task takes from it unless told otherwise
+        (``time_steps``, ``subsample``, ``features``, and ``restarts`` when the task names them)."""
+        out = {"time_steps": self.time_steps, "subsample": self.subsample, "features": self.features}
+        if self.restarts is not None:
+            out["restarts"] = self.restarts
+        return out
+
     def to_dict(self) -> dict:
         d = asdict(self)
         d["manual_tool_point"] = list(self.manual_tool_point)
