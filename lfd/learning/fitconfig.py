@@ -218,7 +218,7 @@ class FitResult:
     """What ``fit`` found. Losses are per observation, Eq. 3 units (negative log posterior)."""
 
     model: TaskModel
-    loss_history: tuple[tuple[float, ...], ...]  # per restart, then the refit after pruning
+    loss_history: tuple[tuple[float, ...], ...]  # per restart, then each refit after pruning
     em_iterations: tuple[int, ...]
     final_loss: float
     restart_losses: tuple[float, ...]  # nan for a dropped restart
