@@ -288,8 +288,8 @@ def _prune_and_refit(data: FitData, cfg: FitConfig, names, fixed_env, log: _Rest
     Pruning is repeated because a refit moves the weights: the paper forms the set of landmarks
     needed during execution from those with coefficients of at least 5%, so a landmark that falls
     under it in the refit goes too. Measured (docs/EXPERIMENTS.md, *Landmarks that fall under 5% in
-    the refit*): pour demonstrations aimed with another task point kept a spoon and a vase at 5.4%
-    and 5.1% before the refit and 4.6% and 4.4% after it; the planner then aimed at a point
+    the refit*): pour demonstrations aimed with another task point kept a spoon and a vase at 5.6%
+    and 5.8% before the refit and 4.6% and 4.4% after it; the planner then aimed at a point
     beside the bowl that moved with them and poured 45% of 20 scenes, against 95% for the bowl alone."""
     assert log.best is not None
     best_r, state = log.best
