@@ -56,7 +56,9 @@ def timing(args) -> dict:
     for task in ("powder", "pour"):
         ds, source = task_demos(task, kin)
         kw = ds.task.fit_defaults() if ds.task else {}  # as train.py learns it
-        cfg = FitConfig(**{**kw, **({"restarts": args.restarts} if args.restarts else {})})
+        if args.restarts:
+            kw["restarts"] = args.restarts
+        cfg = FitConfig(**kw)
         times, losses = [], []
         for r in range(args.runs):
             t = time.perf_counter()

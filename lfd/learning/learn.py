@@ -300,7 +300,7 @@ def _prune_and_refit(data: FitData, cfg: FitConfig, names, fixed_env, log: _Rest
     fitter = EMFitter(data, cfg, dtype, device, kept)
     if cfg.env == "learn" and Z > 1:
         while len(kept) > 1:
-            keep = [k for k, i in enumerate(kept) if abs(float(w[k])) >= cfg.prune_threshold] or [int(w.abs().argmax())]
+            keep = [k for k in range(len(kept)) if abs(float(w[k])) >= cfg.prune_threshold] or [int(w.abs().argmax())]
             if len(keep) == len(kept):
                 break
             kept, w = [kept[k] for k in keep], w[keep] / w[keep].sum()
@@ -310,7 +310,7 @@ def _prune_and_refit(data: FitData, cfg: FitConfig, names, fixed_env, log: _Rest
                                         _emitter(callback, "refit", best_r, tuple(names[i] for i in kept)))
             except EM_FAILURES as e:
                 raise ValueError(f"refit after pruning to {[names[i] for i in kept]} failed: {e}") from e
-            tool, w, mu, sigma_inv, log_trans, align = state
+            tool, w, *_, align = state  # the next round starts where this refit ended
             log.histories.append(tuple(hist))
             log.iters.append(len(hist))
             final_loss = hist[-1]
