@@ -14,6 +14,7 @@ from lfd.learning.model import TaskModel, logdet_tensor
 from lfd.robot.robots import BAXTER_LEFT
 from lfd.planning.stepcost import ModelStepCost
 from lfd.planning.biased import chain_edges
+from lfd.planning.edgestore import EdgeStore
 from lfd.planning.task_planner import TaskPlanner, TaskPlannerSettings
 
 
@@ -75,22 +76,29 @@ def _pose(rotvec, position):
     return T
 
 
-@pytest.mark.parametrize("feature_set,blocks", [("paper", False), ("attitude", False), ("attitude", True)])
-def test_step_cost_is_the_models_mahalanobis_term(kin, feature_set, blocks):
-    """The planner's step cost is ``ModelStepCost``: per configuration and step, ``step_nll`` less
-    ``s log|Sigma_t|`` (full or block covariances, s != 1, two rotated landmarks); prepared once,
-    it follows the landmarks when they move."""
+def _random_cov_model(kin, feature_set: str, blocks: bool) -> TaskModel:
+    """``_model``'s means with random covariances, full or in the learner's blocks (joints, tool
+    point, attitude), two landmarks mixed 0.3 / 0.7, ``s = 0.6``."""
     base = _model(kin, feature_set=feature_set)
     T, F = base.mu.shape
     g = torch.Generator().manual_seed(5)
     L = torch.tril(0.3 * torch.randn(T, F, F, generator=g, dtype=torch.float64), -1)
     if blocks:  # joints, tool point, attitude: the learner's default 'block' covariance
-        group = torch.tensor([0] * 7 + [1] * 3 + [2] * 6)
+        group = torch.tensor([0] * 7 + [1] * 3 + [2] * 6)[:F]
         L = L * (group[:, None] == group[None, :])
     sigma_inv = L + torch.diag_embed(torch.exp(0.5 * torch.randn(T, F, generator=g, dtype=torch.float64)))
-    model = TaskModel(torch.tensor([0.02, -0.01, 0.1], dtype=torch.float64),
-                      torch.tensor([0.3, 0.7], dtype=torch.float64), base.mu, sigma_inv, base.log_trans,
-                      ["bowl", "cup"], BAXTER_LEFT, logdet_scale=0.6, kin=kin, feature_set=feature_set)
+    return TaskModel(torch.tensor([0.02, -0.01, 0.1], dtype=torch.float64),
+                     torch.tensor([0.3, 0.7], dtype=torch.float64), base.mu, sigma_inv, base.log_trans,
+                     ["bowl", "cup"], BAXTER_LEFT, logdet_scale=0.6, kin=kin, feature_set=feature_set)
+
+
+@pytest.mark.parametrize("feature_set,blocks", [("paper", False), ("attitude", False), ("attitude", True)])
+def test_step_cost_is_the_models_mahalanobis_term(kin, feature_set, blocks):
+    """The planner's step cost is ``ModelStepCost``: per configuration and step, ``step_nll`` less
+    ``s log|Sigma_t|`` (full or block covariances, s != 1, two rotated landmarks); prepared once,
+    it follows the landmarks when they move."""
+    model = _random_cov_model(kin, feature_set, blocks)
+    T, F = model.mu.shape
     planner = TaskPlanner(model, lambda q: False, lambda a, b: False,
                           settings=TaskPlannerSettings(n_vertices=60, seed=0))
     names = ["marker", "cup", "bowl"]
@@ -119,6 +127,61 @@ def test_step_cost_is_the_models_mahalanobis_term(kin, feature_set, blocks):
     assert np.abs(got[1] - got[0]).max() > 1.0  # the move changes the costs
     planner.update_landmarks(names, moved)
     torch.testing.assert_close(planner._landmarks, model.select_landmarks(names, moved))
+
+
+class _NodeByNode:
+    """A step cost without ``prepare_sums``: the edge store evaluates every quadrature node."""
+
+    def __init__(self, cost):
+        self.cost, self.T = cost, cost.T
+
+    def prepare(self, Q):
+        return self.cost.prepare(Q)
+
+    def evaluate(self, parts, landmarks):
+        return self.cost.evaluate(parts, landmarks)
+
+
+@pytest.mark.parametrize("feature_set,blocks", [("paper", True), ("attitude", True), ("attitude", False)])
+def test_edge_costs_from_summed_parts_equal_the_sums_over_the_nodes(kin, feature_set, blocks):
+    """``prepare_sums``/``evaluate_sums`` (an edge's cost from its nodes' moments, one evaluation
+    per edge) give each run's summed ``evaluate``, before and after a landmark move, runs of 0
+    rows included; a full covariance couples joints and task features and declines (None), and
+    the planner's edge costs then come from every node. The edge store's costs equal those
+    computed node by node either way."""
+    model = _random_cov_model(kin, feature_set, blocks)
+    cost = ModelStepCost(model, max_batch=7)  # several batches, runs straddling them
+    rng = np.random.default_rng(3)
+    counts = rng.integers(0, 5, 40)
+    counts[:3] = [0, 1, 0]
+    Q = kin.sample_uniform(int(counts.sum()), generator=torch.Generator().manual_seed(4)).numpy()
+    names = ["cup", "bowl"]
+    poses = np.stack([_pose([0.0, 0.0, 0.8], [0.6, -0.2, 0.0]), _pose([0.3, -0.2, 0.1], [0.7, 0.4, -0.1])])
+    moved = poses.copy()
+    moved[1] = _pose([0.0, 0.5, -0.2], [0.5, 0.1, 0.2])
+    summed = cost.prepare_sums(Q, counts)
+    assert (summed is None) == (not blocks)
+    if summed is not None:
+        parts = cost.prepare(Q)
+        ends = np.cumsum(counts)
+        for sensed in (poses, moved):
+            landmarks = model.select_landmarks(names, sensed)
+            per_node = cost.evaluate(parts, landmarks)  # (N, T)
+            want = np.stack([per_node[e - c:e].sum(0) for e, c in zip(ends, counts)])
+            got = cost.evaluate_sums(summed, landmarks)
+            assert want.max() > 10.0 and (want[counts == 0] == 0).all()
+            np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10 * want.max())
+    planner = TaskPlanner(model, lambda q: False, lambda a, b: False,
+                          settings=TaskPlannerSettings(n_vertices=60, seed=0))
+    planner.update_landmarks(names, moved)
+    assert planner.plan(model.mu[0, :7].numpy(), 0).ok
+    E = planner.planner.edges
+    assert (E.m > 2).sum() > 10  # edges with several interior nodes
+    by_node = EdgeStore(planner.roadmap, _NodeByNode(E.step_cost), E.stay, E.dt, E.vmax, E.quad_dt)
+    by_node.invalidate(landmarks=model.select_landmarks(names, moved))
+    (ell, W), (ell_n, W_n) = E.costs(), by_node.costs()
+    np.testing.assert_array_equal(ell, ell_n)
+    np.testing.assert_allclose(W, W_n, rtol=1e-10, atol=1e-10 * np.abs(W_n[np.isfinite(W_n)]).max())
 
 
 @pytest.mark.parametrize("dtype,feature_set", [(torch.float64, "paper"), (torch.float32, "paper"),

@@ -39,7 +39,7 @@ import numpy as np
 import torch
 
 from lfd.planning.roadmap import Roadmap
-from lfd.planning.stepcost import StepCost
+from lfd.planning.stepcost import StepCost, SummedStepCost
 
 __all__ = ["BLOCKED", "FREE", "UNKNOWN", "EdgeStore"]
 
@@ -63,14 +63,20 @@ def interior_points(Qa: np.ndarray, Qb: np.ndarray, m: np.ndarray) -> tuple[np.n
     return Qa[edge] + (Qb[edge] - Qa[edge]) * frac[:, None], first
 
 
-def trapezoid_costs(ell_a: np.ndarray, ell_b: np.ndarray, ell_in: np.ndarray, first: np.ndarray,
-                    m: np.ndarray, tau: np.ndarray, stay: np.ndarray, dt: float) -> np.ndarray:
-    """``(E, T)`` edge costs from the step costs at the ends ``(E, T)`` and interior nodes
-    ``ell_in (P, T)`` (edge by edge from ``first``), ``m``/``tau (E,)``, ``stay (T,)``."""
-    sums = np.zeros_like(ell_a)
+def interior_sums(ell_in: np.ndarray, first: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """``(E, T)`` each edge's step costs summed over its interior nodes, from ``ell_in (P, T)``
+    (edge by edge from ``first (E,)``, ``m - 1`` rows each)."""
+    sums = np.zeros((len(m), ell_in.shape[1]))
     has = m > 1
     if has.any():
         sums[has] = np.add.reduceat(ell_in, first[has], axis=0)
+    return sums
+
+
+def trapezoid_costs(ell_a: np.ndarray, ell_b: np.ndarray, sums: np.ndarray, m: np.ndarray, tau: np.ndarray,
+                    stay: np.ndarray, dt: float) -> np.ndarray:
+    """``(E, T)`` edge costs from the step costs at the ends ``(E, T)`` and summed over the
+    interior nodes ``sums (E, T)``, ``m``/``tau (E,)``, ``stay (T,)``."""
     mean = (0.5 * (ell_a + ell_b) + sums) / m[:, None]
     with np.errstate(invalid="ignore"):
         W = (tau / dt)[:, None] * (stay[None, :] + mean)
@@ -110,12 +116,18 @@ class EdgeStore:
         self.state = np.empty(0, dtype=np.int8)
         self._first = np.empty(0, dtype=np.int64)  # (E,) first interior row of each edge
         self._vparts: tuple | None = None
-        self._pparts: tuple | None = None
+        self._pparts: tuple | None = None  # per interior node, or
+        self._sparts: tuple | None = None  # per edge, summed over its interior nodes (``prepare_sums``)
+        # edges' costs from their nodes' summed parts when the step cost can sum them (one
+        # evaluation per edge on a landmark move; measured in docs/EXPERIMENTS.md, *Edge costs
+        # from summed parts*), else from every node
+        self._summable = (isinstance(step_cost, SummedStepCost)
+                          and step_cost.prepare_sums(np.empty((0, roadmap.d)), np.empty(0, dtype=np.int64)) is not None)
         self._n_points = 0
         self._box = np.empty((0, 2, 3))  # (E, 2, 3) swept boxes (with keypoint_fn)
         self._vkey = np.empty((0, 0, 3))  # (n, K, 3) vertex keypoints
         self._pkey = np.empty((0, 0, 3))  # (P, K, 3) interior-node keypoints
-        self._screened = np.empty(0, dtype=bool)  # (E,) interior nodes point-checked since the last reset
+        self._screened = np.empty(0, dtype=bool)  # (E,) midpoint checked since the last reset
         self._vscreened = np.empty(0, dtype=bool)  # (n,) vertex checked since a nearby object moved
         self._regions: list[tuple[np.ndarray, float]] = []  # balls objects moved into
         self._epoch = np.empty(0, dtype=np.int64)  # (E,) regions an edge's state and screen account for
@@ -152,10 +164,14 @@ class EdgeStore:
         m = np.maximum(1, np.ceil(tau / self.quad_dt - 1e-9)).astype(np.int64)
         P, first = interior_points(Qa, Qb, m)
         state = np.zeros(len(new), dtype=np.int8)
-        if len(P):  # coarse screen: an edge with a colliding quadrature node is blocked for sure
+        if len(P):  # coarse screen, every quadrature node (the search's screen checks midpoints: ``screen``)
             state[np.repeat(np.arange(len(new)), m - 1)[self.roadmap.in_collision(P)]] = BLOCKED
             self.counters["screened_points"] += len(P)
-        self._pparts = _cat([self._pparts, self.step_cost.prepare(P)])
+        if self._summable:
+            assert isinstance(self.step_cost, SummedStepCost)
+            self._sparts = _cat([self._sparts, self.step_cost.prepare_sums(P, m - 1)])
+        else:
+            self._pparts = _cat([self._pparts, self.step_cost.prepare(P)])
         self._first = np.concatenate([self._first, first + self._n_points])
         self._n_points += len(P)
         if self.keypoint_fn is not None:
@@ -265,10 +281,15 @@ class EdgeStore:
         return best <= r + self.sweep_margin + self._half_spacing(self.ends[eids], m)
 
     def screen(self, eids) -> int:
-        """Point-check the interior quadrature nodes of the unknown, unscreened edges among
-        ``eids`` in one batch (``roadmap.in_collision``); those with a colliding node become
-        ``BLOCKED``. A cheap first look near a collision; the segment check stays the final
-        word. Returns how many were blocked."""
+        """Point-check the midpoints of the unknown, unscreened edges among ``eids`` in one
+        batch (``roadmap.in_collision``); those whose midpoint collides become ``BLOCKED``. A
+        cheap first look near a collision; the segment check stays the final word. Returns how
+        many were blocked.
+
+        One point per edge, not every quadrature node: measured on the pour's reaction to a moved
+        bowl (docs/EXPERIMENTS.md, *The point screen: one point per edge*), the nodes cost twice
+        the segment checks they saved; the midpoint keeps nearly all of the screen's effect on the
+        number of searches."""
         eids = np.unique(np.asarray(eids, dtype=np.int64))
         self._refresh(eids)
         eids = eids[(self.state[eids] == UNKNOWN) & ~self._screened[eids]]
@@ -281,15 +302,12 @@ class EdgeStore:
             if len(bad):
                 self.set_blocked(np.flatnonzero(np.isin(self.ends, bad).any(axis=1)))
                 eids = eids[self.state[eids] == UNKNOWN]
-        m = self.m[eids]
-        eids, m = eids[m > 1], m[m > 1]
+        eids = eids[self.m[eids] > 1]
         if len(eids) == 0:
             return 0
         V = self.roadmap.vertices
-        P, _ = interior_points(V[self.ends[eids, 0]], V[self.ends[eids, 1]], m)
-        self.counters["screened_points"] += len(P)
-        hit = np.zeros(len(eids), dtype=bool)
-        np.logical_or.at(hit, np.repeat(np.arange(len(eids)), m - 1), self.roadmap.in_collision(P))
+        self.counters["screened_points"] += len(eids)
+        hit = self.roadmap.in_collision(0.5 * (V[self.ends[eids, 0]] + V[self.ends[eids, 1]]))
         self.set_blocked(eids[hit])
         return int(hit.sum())
 
@@ -320,10 +338,16 @@ class EdgeStore:
             if self._landmarks is None:
                 raise LookupError("no landmarks yet: call invalidate(landmarks=...) first")
             ell = self.step_cost.evaluate(self._vparts, self._landmarks)
-            ell_in = (self.step_cost.evaluate(self._pparts, self._landmarks) if self._n_points
-                      else np.zeros((0, self.T)))
+            if self._summable:
+                assert isinstance(self.step_cost, SummedStepCost)
+                sums = (self.step_cost.evaluate_sums(self._sparts, self._landmarks) if self._sparts is not None
+                        else np.zeros((0, self.T)))
+            else:
+                ell_in = (self.step_cost.evaluate(self._pparts, self._landmarks) if self._n_points
+                          else np.zeros((0, self.T)))
+                sums = interior_sums(ell_in, self._first, self.m)
             u, w = self.ends[:, 0], self.ends[:, 1]
-            W = trapezoid_costs(ell[u], ell[w], ell_in, self._first, self.m, self.tau, self.stay, self.dt)
+            W = trapezoid_costs(ell[u], ell[w], sums, self.m, self.tau, self.stay, self.dt)
             self._costs = (ell, W)
             self.counters["cost_updates"] += 1
         return self._costs
@@ -341,6 +365,6 @@ class EdgeStore:
         P, first = interior_points(Qa, Qb, m)
         ell = self.step_cost.evaluate(self.step_cost.prepare(np.concatenate([q, Qb, P])), self._landmarks)
         k = len(Qb)
-        W = trapezoid_costs(np.broadcast_to(ell[0], (k, self.T)), ell[1:k + 1], ell[k + 1:], first, m, tau,
-                            self.stay, self.dt)
+        W = trapezoid_costs(np.broadcast_to(ell[0], (k, self.T)), ell[1:k + 1], interior_sums(ell[k + 1:], first, m),
+                            m, tau, self.stay, self.dt)
         return ell[0], W

@@ -11,6 +11,12 @@ after a landmark moves; only the landmarks change. A ``StepCost`` therefore has 
 * ``evaluate(parts, landmarks) -> (N, T)`` float64 numpy: the costs for these landmarks; may
   raise ``LookupError`` when a needed landmark is missing.
 
+A step cost may also sum over runs of configurations before the landmarks are known (the
+planner's edges integrate the cost over their quadrature nodes): ``prepare_sums(Q (N, d),
+counts (E,)) -> parts`` for ``E`` consecutive runs of ``counts`` rows, or None when it cannot;
+``evaluate_sums(parts, landmarks) -> (E, T)``, each run's summed cost. Without them the planner
+evaluates every node (``CallableStepCost``).
+
 ``ModelStepCost`` (a learned ``TaskModel``). With the features ``f = [q; x]`` (Eq. 2), ``x (3k,)`` the
 task features (the tool point in the virtual landmark frame, then with the ``'attitude'`` feature
 set the gripper's axes there), and ``S_t = sigma_inv_t = [S_q | S_x]`` split into its
@@ -34,6 +40,14 @@ alone), accumulated into one ``(N, T)`` result: for the paper's features
 (``k = 1``) about 20 flops per configuration and step instead of FK plus an ``F x F`` triangular
 product.
 
+Summed over a run of configurations (an edge's quadrature nodes), the cost needs only the run's
+moments of the world vectors ``y = vec(P) (3k,)``: with ``x = A y + b`` (``A`` three copies of
+``K_virt^-1``'s linear part, ``b`` its translation on the tool point), ``sum x x^T = n xbar xbar^T
++ A C A^T`` (``xbar = A ybar + b``, ``C`` the run's centred scatter of ``y``) and ``sum x = n
+xbar``, so a landmark move costs one evaluation per edge, not per node (the pour's roadmap: 30,000
+edges against 160,000 nodes). With joints and task features coupled (``beta'`` per
+configuration) the sums do not separate and ``prepare_sums`` returns None.
+
 ``CallableStepCost`` adapts any ``factory(landmarks) -> step_nll(Q: (N, d)) -> (N, T)`` (a toy
 cost, a user's own model) with a known lower bound ``floor`` (one number or ``(T,)``) subtracted.
 """
@@ -41,14 +55,14 @@ cost, a user's own model) with a known lower bound ``floor`` (one number or ``(T
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 import torch
 
 from lfd.learning.model import TaskModel, task_features_tensor, task_vectors_tensor
 
-__all__ = ["FK_BATCH", "CallableStepCost", "CostError", "ModelStepCost", "StepCost"]
+__all__ = ["FK_BATCH", "CallableStepCost", "CostError", "ModelStepCost", "StepCost", "SummedStepCost", "run_owner"]
 
 # configurations per forward-kinematics call over a roadmap's quadrature nodes (~160,000 for the
 # pour): the FK's per-link intermediates of all of them at once took a gigabyte
@@ -65,6 +79,20 @@ class StepCost(Protocol):
     def prepare(self, Q: np.ndarray) -> tuple[torch.Tensor, ...]: ...
 
     def evaluate(self, parts: tuple[torch.Tensor, ...], landmarks) -> np.ndarray: ...
+
+
+@runtime_checkable
+class SummedStepCost(StepCost, Protocol):
+    """A ``StepCost`` that can also sum over runs of configurations (module docstring)."""
+
+    def prepare_sums(self, Q: np.ndarray, counts: np.ndarray) -> tuple[torch.Tensor, ...] | None: ...
+
+    def evaluate_sums(self, parts: tuple[torch.Tensor, ...], landmarks) -> np.ndarray: ...
+
+
+def run_owner(counts: np.ndarray) -> np.ndarray:
+    """``(sum(counts),)`` the run each row belongs to, for runs of ``counts (E,)`` rows."""
+    return np.repeat(np.arange(len(counts)), counts)
 
 
 def _checked(out, n: int, T: int, name: str) -> np.ndarray:
@@ -142,6 +170,51 @@ class ModelStepCost:
                 out.addmm_(x, self._beta_all, alpha=2.0)
             out.clamp_min_(0.0)
         return _checked(out, len(P), self.T, "ModelStepCost")
+
+    def prepare_sums(self, Q, counts) -> tuple[torch.Tensor, ...] | None:
+        """Moments of ``E`` runs of ``counts (E,)`` consecutive rows of ``Q (N, d)``: ``n (E,)``,
+        the mean ``ybar (E, 3k)`` and centred scatter ``C (E, 3k, 3k)`` of the world vectors, and
+        ``sum alpha' (E, T)``; None with joints and task features coupled (module docstring)."""
+        if self._beta_all is None:
+            return None
+        m = self.model
+        Q = np.asarray(Q, dtype=float).reshape(-1, self.d)
+        counts = np.asarray(counts, dtype=np.int64).reshape(-1)
+        if counts.sum() != len(Q) or (counts < 0).any():
+            raise ValueError(f"counts must be >= 0 and sum to the {len(Q)} rows of Q, got {counts.sum()}")
+        E, n3 = len(counts), self._mu_x.shape[1]
+        owner = torch.as_tensor(run_owner(counts), device=m.device)
+        n = torch.as_tensor(counts, dtype=m.dtype, device=m.device)
+        y = n.new_empty(len(Q), n3)
+        alpha_sum = n.new_zeros(E, self.T)
+        batches = [slice(s, min(s + self.max_batch, len(Q))) for s in range(0, len(Q), self.max_batch)]
+        for rows in batches:
+            P, alpha = self.prepare(Q[rows])
+            y[rows] = P.reshape(len(P), n3)
+            alpha_sum.index_add_(0, owner[rows], alpha)
+        ybar = n.new_zeros(E, n3).index_add_(0, owner, y) / n.clamp_min(1.0)[:, None]
+        C = n.new_zeros(E, n3, n3)
+        for rows in batches:  # centred: the world vectors' mean is metres, their spread centimetres
+            dy = y[rows] - ybar[owner[rows]]
+            C.index_add_(0, owner[rows], dy[:, :, None] * dy[:, None, :])
+        return n, ybar, C, alpha_sum
+
+    def evaluate_sums(self, parts, landmarks) -> np.ndarray:
+        """``(E, T)``: each run's Mahalanobis terms summed over its rows (``prepare_sums``'s parts)."""
+        n, ybar, C, alpha_sum = parts
+        if self._beta_all is None:
+            raise ValueError("evaluate_sums: this model couples joints and task features; prepare_sums gave None")
+        K = self.model.K_virt_inv(landmarks).detach()  # (4, 4)
+        k = ybar.shape[1] // 3
+        i, j = self._pairs
+        with torch.no_grad():
+            xbar = task_features_tensor(ybar.reshape(-1, k, 3), K)  # (E, 3k)
+            A = torch.block_diag(*[K[:3, :3]] * k)  # (3k, 3k)
+            XX = n[:, None, None] * xbar[:, :, None] * xbar[:, None, :] + A @ C @ A.T  # (E, 3k, 3k)
+            out = torch.addmm(alpha_sum, XX[:, i, j], self._Gtri)
+            out.addmm_(n[:, None] * xbar, self._beta_all, alpha=2.0)
+            out.clamp_min_(0.0)
+        return _checked(out, len(n), self.T, "ModelStepCost")
 
 
 class CallableStepCost:
