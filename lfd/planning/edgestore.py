@@ -5,7 +5,7 @@
 * its traversal time ``tau[e] = max_j |q_w - q_u|_j / vmax_j`` at the joint velocity limits and
   its ``m[e] = max(1, ceil(tau / quad_dt))`` quadrature sub-intervals, whose ``m - 1`` interior
   configurations are prepared once by the step cost (``lfd.planning.stepcost``: FK and everything else
-  that does not depend on the landmarks);
+  that does not depend on the landmarks; summed per edge when the step cost can, ``prepare_sums``);
 * its cost at every time step, the line integral of the paper's Sec. V-B over the motion::
 
       W[e, t] = (tau / dt) * (stay[t] + mean_s ell(q(s), t))
@@ -116,7 +116,7 @@ class EdgeStore:
         self.state = np.empty(0, dtype=np.int8)
         self._first = np.empty(0, dtype=np.int64)  # (E,) first interior row of each edge
         self._vparts: tuple | None = None
-        self._pparts: tuple | None = None  # per interior node, or
+        self._pparts: tuple | None = None  # the interior nodes' parts (a step cost that cannot sum), or
         self._sparts: tuple | None = None  # per edge, summed over its interior nodes (``prepare_sums``)
         # edges' costs from their nodes' summed parts when the step cost can sum them (one
         # evaluation per edge on a landmark move; measured in docs/EXPERIMENTS.md, *Edge costs
