@@ -41,7 +41,7 @@ alone), accumulated into one ``(N, T)`` result: for the paper's features
 product.
 
 Summed over a run of configurations (an edge's quadrature nodes), the cost needs only the run's
-moments of the world vectors ``y = vec(P) (3k,)``: with ``x = A y + b`` (``A`` three copies of
+moments of the world vectors ``y = vec(P) (3k,)``: with ``x = A y + b`` (``A`` ``k`` copies of
 ``K_virt^-1``'s linear part, ``b`` its translation on the tool point), ``sum x x^T = n xbar xbar^T
 + A C A^T`` (``xbar = A ybar + b``, ``C`` the run's centred scatter of ``y``) and ``sum x = n
 xbar``, so a landmark move costs one evaluation per edge, not per node (the pour's roadmap: 30,000
@@ -62,7 +62,7 @@ import torch
 
 from lfd.learning.model import TaskModel, task_features_tensor, task_vectors_tensor
 
-__all__ = ["FK_BATCH", "CallableStepCost", "CostError", "ModelStepCost", "StepCost", "SummedStepCost", "run_owner"]
+__all__ = ["FK_BATCH", "CallableStepCost", "CostError", "ModelStepCost", "StepCost", "SummedStepCost"]
 
 # configurations per forward-kinematics call over a roadmap's quadrature nodes (~160,000 for the
 # pour): the FK's per-link intermediates of all of them at once took a gigabyte
@@ -88,11 +88,6 @@ class SummedStepCost(StepCost, Protocol):
     def prepare_sums(self, Q: np.ndarray, counts: np.ndarray) -> tuple[torch.Tensor, ...] | None: ...
 
     def evaluate_sums(self, parts: tuple[torch.Tensor, ...], landmarks) -> np.ndarray: ...
-
-
-def run_owner(counts: np.ndarray) -> np.ndarray:
-    """``(sum(counts),)`` the run each row belongs to, for runs of ``counts (E,)`` rows."""
-    return np.repeat(np.arange(len(counts)), counts)
 
 
 def _checked(out, n: int, T: int, name: str) -> np.ndarray:
@@ -183,7 +178,7 @@ class ModelStepCost:
         if counts.sum() != len(Q) or (counts < 0).any():
             raise ValueError(f"counts must be >= 0 and sum to the {len(Q)} rows of Q, got {counts.sum()}")
         E, n3 = len(counts), self._mu_x.shape[1]
-        owner = torch.as_tensor(run_owner(counts), device=m.device)
+        owner = torch.as_tensor(np.repeat(np.arange(E), counts), device=m.device)  # (N,) each row's run
         n = torch.as_tensor(counts, dtype=m.dtype, device=m.device)
         y = n.new_empty(len(Q), n3)
         alpha_sum = n.new_zeros(E, self.T)
