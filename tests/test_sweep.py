@@ -144,8 +144,9 @@ def test_crashed_runs_are_logged_counted_apart_and_run_again_on_resume(tmp_path,
 
 _SWEEP = """
 import signal, sys
-# Ctrl-C as a terminal delivers it: the test process may run with SIGINT ignored (set by a C
-# library earlier in the suite), and an ignored signal stays ignored across exec (seen: the
+# Ctrl-C as a terminal delivers it: the test process may run with SIGINT ignored (a shell
+# without job control starts its background commands so; no test changes the handler, checked
+# after every test of the suite), and an ignored signal stays ignored across exec (seen: the
 # sweep ran all ten runs after the signal and exited 0)
 signal.signal(signal.SIGINT, signal.default_int_handler)
 signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT])
