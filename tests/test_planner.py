@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from lfd.planning.edgestore import BLOCKED, FREE, UNKNOWN
+from lfd.planning.edgestore import BLOCKED, FREE, UNKNOWN, EdgeStore
 from lfd.planning.planner import ClosedLoopPlanner, PlannerSettings
 from lfd.planning.roadmap import Roadmap, k_prm_star
 from lfd.planning.stepcost import CallableStepCost
@@ -441,3 +441,45 @@ def test_a_blocked_start_edge_is_counted_and_avoided():
     assert res.cost >= free.cost
     ref = reference_cost(rm, arc_means(T2), trans_table(T2), q0, 0, seg=segment_fn)
     assert res.cost == pytest.approx(ref, rel=1e-9)
+
+
+def test_the_search_screen_checks_midpoints_and_the_construction_screen_every_node():
+    """``EdgeStore.screen`` (the search's first look near a collision) checks one point per
+    edge, its midpoint: an edge whose midpoint collides is blocked, one that collides elsewhere
+    is left to the segment check. The screen of edges as they are added checks every
+    quadrature node. Three vertices, two small boxes: one on edge 0-1's midpoint, one a quarter
+    of the way along edge 0-2; edge 1-2 is free."""
+    boxes: list = []
+
+    def collides(q) -> bool:
+        return any(bool(np.all(q >= lo) and np.all(q <= hi)) for lo, hi in boxes)
+
+    def segment(q1, q2) -> bool:
+        return any(collides(q1 + (q2 - q1) * s) for s in np.linspace(0.0, 1.0, 201))
+
+    V = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    on_midpoint = (np.array([0.45, -0.05]), np.array([0.55, 0.05]))
+    off_midpoint = (np.array([-0.05, 0.2]), np.array([0.05, 0.3]))
+
+    def store():
+        rm = Roadmap(2, collides, segment)
+        rm.add_vertices(V, check=False)
+        E = EdgeStore(rm, step_cost(T2), np.full(T2, 0.1), DT, np.ones(2))
+        rows = {frozenset(map(int, E.ends[e])): e for e in range(len(E.ends))}
+        assert set(rows) == {frozenset({0, 1}), frozenset({0, 2}), frozenset({1, 2})}
+        assert (E.m >= 10).all()  # 1 m at 1 rad/s, nodes every 0.1 s
+        return E, rows[frozenset({0, 1})], rows[frozenset({0, 2})], rows[frozenset({1, 2})]
+
+    # the boxes appear after the edges were added: the search's screen finds one of them
+    E, e01, e02, e12 = store()
+    assert (E.state == UNKNOWN).all()
+    boxes[:] = [on_midpoint, off_midpoint]
+    E.invalidate(occupied=(np.zeros(3), 1.0))  # no keypoint_fn: every edge is near the ball
+    before = E.counters["screened_points"]
+    assert E.screen([e01, e02, e12]) == 1
+    assert E.counters["screened_points"] - before == 3  # one point per edge
+    assert E.state[e01] == BLOCKED and E.state[e02] == UNKNOWN and E.state[e12] == UNKNOWN
+    assert E.check([e02, e12]).tolist() == [False, True]  # the segment check has the last word
+    # the boxes are there when the edges are added: every node is checked, both edges blocked
+    E, e01, e02, e12 = store()
+    assert E.state[e01] == BLOCKED and E.state[e02] == BLOCKED and E.state[e12] == UNKNOWN
