@@ -142,6 +142,19 @@ class _NodeByNode:
         return self.cost.evaluate(parts, landmarks)
 
 
+class _CountingSums(_NodeByNode):
+    """A step cost that sums (delegating to ``cost``) and counts the summed evaluations."""
+
+    calls = 0
+
+    def prepare_sums(self, Q, counts):
+        return self.cost.prepare_sums(Q, counts)
+
+    def evaluate_sums(self, parts, landmarks):
+        self.calls += 1
+        return self.cost.evaluate_sums(parts, landmarks)
+
+
 @pytest.mark.parametrize("feature_set,blocks", [("paper", True), ("attitude", True), ("attitude", False)])
 def test_edge_costs_from_summed_parts_equal_the_sums_over_the_nodes(kin, feature_set, blocks):
     """``prepare_sums``/``evaluate_sums`` (an edge's cost from its nodes' moments, one evaluation
@@ -177,9 +190,12 @@ def test_edge_costs_from_summed_parts_equal_the_sums_over_the_nodes(kin, feature
     assert planner.plan(model.mu[0, :7].numpy(), 0).ok
     E = planner.planner.edges
     assert (E.m > 2).sum() > 10  # edges with several interior nodes
-    by_node = EdgeStore(planner.roadmap, _NodeByNode(E.step_cost), E.stay, E.dt, E.vmax, E.quad_dt)
-    by_node.invalidate(landmarks=model.select_landmarks(names, moved))
-    (ell, W), (ell_n, W_n) = E.costs(), by_node.costs()
+    counted = _CountingSums(E.step_cost)
+    stores = [EdgeStore(planner.roadmap, c, E.stay, E.dt, E.vmax, E.quad_dt) for c in (counted, _NodeByNode(E.step_cost))]
+    for store in stores:
+        store.invalidate(landmarks=model.select_landmarks(names, moved))
+    (ell, W), (ell_n, W_n) = (store.costs() for store in stores)
+    assert counted.calls == (1 if blocks else 0)  # the summed path was taken when the cost can sum
     np.testing.assert_array_equal(ell, ell_n)
     np.testing.assert_allclose(W, W_n, rtol=1e-10, atol=1e-10 * np.abs(W_n[np.isfinite(W_n)]).max())
 

@@ -121,8 +121,10 @@ class EdgeStore:
         # edges' costs from their nodes' summed parts when the step cost can sum them (one
         # evaluation per edge on a landmark move; measured in docs/EXPERIMENTS.md, *Edge costs
         # from summed parts*), else from every node
-        self._summable = (isinstance(step_cost, SummedStepCost)
-                          and step_cost.prepare_sums(np.empty((0, roadmap.d)), np.empty(0, dtype=np.int64)) is not None)
+        self._summed: SummedStepCost | None = None
+        if isinstance(step_cost, SummedStepCost) and \
+                step_cost.prepare_sums(np.empty((0, roadmap.d)), np.empty(0, dtype=np.int64)) is not None:
+            self._summed = step_cost
         self._n_points = 0
         self._box = np.empty((0, 2, 3))  # (E, 2, 3) swept boxes (with keypoint_fn)
         self._vkey = np.empty((0, 0, 3))  # (n, K, 3) vertex keypoints
@@ -167,9 +169,8 @@ class EdgeStore:
         if len(P):  # coarse screen, every quadrature node (the search's screen checks midpoints: ``screen``)
             state[np.repeat(np.arange(len(new)), m - 1)[self.roadmap.in_collision(P)]] = BLOCKED
             self.counters["screened_points"] += len(P)
-        if self._summable:
-            assert isinstance(self.step_cost, SummedStepCost)
-            self._sparts = _cat([self._sparts, self.step_cost.prepare_sums(P, m - 1)])
+        if self._summed is not None:
+            self._sparts = _cat([self._sparts, self._summed.prepare_sums(P, m - 1)])
         else:
             self._pparts = _cat([self._pparts, self.step_cost.prepare(P)])
         self._first = np.concatenate([self._first, first + self._n_points])
@@ -338,9 +339,8 @@ class EdgeStore:
             if self._landmarks is None:
                 raise LookupError("no landmarks yet: call invalidate(landmarks=...) first")
             ell = self.step_cost.evaluate(self._vparts, self._landmarks)
-            if self._summable:
-                assert isinstance(self.step_cost, SummedStepCost)
-                sums = (self.step_cost.evaluate_sums(self._sparts, self._landmarks) if self._sparts is not None
+            if self._summed is not None:
+                sums = (self._summed.evaluate_sums(self._sparts, self._landmarks) if self._sparts is not None
                         else np.zeros((0, self.T)))
             else:
                 ell_in = (self.step_cost.evaluate(self._pparts, self._landmarks) if self._n_points
