@@ -483,3 +483,50 @@ def test_the_search_screen_checks_midpoints_and_the_construction_screen_every_no
     # the boxes are there when the edges are added: every node is checked, both edges blocked
     E, e01, e02, e12 = store()
     assert E.state[e01] == BLOCKED and E.state[e02] == BLOCKED and E.state[e12] == UNKNOWN
+
+
+def test_an_object_that_leaves_frees_only_the_edges_it_blocked():
+    """Two boxes; the one on the left leaves. Edges blocked by the wall on the right stay blocked
+    even where their motion passes near the box that left (their witness, the configuration
+    found colliding, lies in the wall); the edges the box blocked are reset, and their witness,
+    tried first, settles those that still collide without a segment check. Every edge then
+    answers right for the new world."""
+    boxes = {"box": (np.array([0.1, 0.1]), np.array([0.3, 0.3])),
+             "wall": (np.array([0.32, -0.6]), np.array([0.45, 0.6]))}
+
+    def collides(q):
+        return any(bool(np.all(q >= lo) and np.all(q <= hi)) for lo, hi in boxes.values())
+
+    def segment(q1, q2):
+        return any(collides(q1 + (q2 - q1) * s) for s in np.linspace(0.0, 1.0, 201))
+
+    def keypoints(Q):  # the configuration as a point in the plane z = 0 (twice: one "link")
+        P = np.c_[np.asarray(Q, dtype=float), np.zeros(len(Q))]
+        return np.stack([P, P], axis=1)
+
+    rng = np.random.default_rng(11)
+    rm = Roadmap.build(lambda n: rng.uniform(-1, 1, (n, 2)), 200, collides, segment)
+    E = EdgeStore(rm, step_cost(T2), np.full(T2, 0.1), DT, VMAX2, keypoint_fn=keypoints, sweep_margin=0.0)
+    V = rm.vertices
+    centre, radius = np.array([0.2, 0.2, 0.0]), 0.15
+    # how close each edge's motion comes to the box that leaves (the ball of radius ``radius``)
+    s = np.linspace(0.0, 1.0, 201)
+    Qs = V[E.ends[:, 0], None] + (V[E.ends[:, 1]] - V[E.ends[:, 0]])[:, None] * s[None, :, None]
+    near = np.linalg.norm(Qs - centre[:2], axis=-1).min(1) <= radius
+    before = E.state.copy()
+    assert (before == BLOCKED).sum() > 20
+    boxes.pop("box")
+    truth = np.array([segment(V[u], V[w]) for u, w in E.ends])
+    E.invalidate(vacated=(centre, radius))
+    kept = (E.state == BLOCKED)
+    assert truth[kept].all()  # nothing free is held blocked
+    reset = (before == BLOCKED) & (E.state == UNKNOWN)
+    assert reset.sum() > 0 and not truth[reset].all()
+    # blocked by the wall, passing near the box: a test of the motion would have reset them too
+    assert (kept & near).any() and reset.sum() < ((before == BLOCKED) & near).sum()
+    witness0, segments0 = E.counters["witness_checks"], E.counters["segment_checks"]
+    np.testing.assert_array_equal(E.check(np.flatnonzero(reset)), ~truth[reset])
+    assert E.counters["witness_checks"] - witness0 == reset.sum()  # each had the construction screen's
+    # some still collide at their witness (in the wall, near the box's place): no segment check
+    assert 0 < reset.sum() - (E.counters["segment_checks"] - segments0) <= (reset & truth).sum()
+    np.testing.assert_array_equal(E.check(np.arange(len(E.ends))), ~truth)

@@ -14,13 +14,18 @@
   ``m + 1`` nodes), computed for all edges and steps in a few array operations when first asked
   for after new landmarks;
 * its collision state: ``UNKNOWN`` (not checked, or checked before a nearby object moved),
-  ``FREE`` or ``BLOCKED``.
+  ``FREE`` or ``BLOCKED``, and for a blocked edge a *witness* when one is known: the
+  configuration found colliding (a quadrature node of the construction's or the search's point
+  screens, or an end vertex; the segment check does not say where it hit).
 
 One method changes what is known: ``invalidate(landmarks=..., vacated=..., occupied=...)``. New
 landmarks make every cost stale (recomputed in one batch on the next ``costs()``). An object that
 moved leaves a ball (``vacated``, its old place) and takes another (``occupied``): an object that
-leaves cannot make a motion collide, so only the blocked edges passing near the vacated ball are
-reset (at once, so that the search may use them again); an object that arrives cannot free a
+leaves cannot make a motion collide, so only the blocked edges it may have blocked are reset (at
+once, so that the search may use them again): those whose witness lies near the vacated ball
+(without a witness, whose motion passes near it). Their witness is the first thing ``screen`` and
+``check`` test, one configuration that settles most of them (what else they hit -- the table, a
+neighbouring object -- is usually still there). An object that arrives cannot free a
 motion, so only the free (and screened) edges passing near the occupied ball become stale, and
 lazily: ``check`` and ``screen`` test the edges a path reaches against the balls occupied since
 they were settled. The work of a move is proportional to the path, not to the roadmap. The swept box of an edge bounds the ``keypoint_fn`` points (e.g. link origins and the tool
@@ -71,6 +76,13 @@ def interior_sums(ell_in: np.ndarray, first: np.ndarray, m: np.ndarray) -> np.nd
     if has.any():
         sums[has] = np.add.reduceat(ell_in, first[has], axis=0)
     return sums
+
+
+def _polyline_distance(K: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """``(N,)`` distance from ``c (3,)`` to each polyline of keypoints ``K (N, K, 3)``."""
+    a, ab = K[:, :-1], np.diff(K, axis=1)  # (N, K-1, 3) link segments
+    s = np.clip(((c - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(a + s[..., None] * ab - c, axis=-1).min(1)
 
 
 def trapezoid_costs(ell_a: np.ndarray, ell_b: np.ndarray, sums: np.ndarray, m: np.ndarray, tau: np.ndarray,
@@ -130,13 +142,17 @@ class EdgeStore:
         self._vkey = np.empty((0, 0, 3))  # (n, K, 3) vertex keypoints
         self._pkey = np.empty((0, 0, 3))  # (P, K, 3) interior-node keypoints
         self._screened = np.empty(0, dtype=bool)  # (E,) midpoint checked since the last reset
+        # a configuration found colliding on each blocked edge (a witness), when one is known: an
+        # interior node (row of the interior nodes) or an end vertex; -1 where none
+        self._wnode = np.empty(0, dtype=np.int64)  # (E,)
+        self._wvert = np.empty(0, dtype=np.int64)  # (E,)
         self._vscreened = np.empty(0, dtype=bool)  # (n,) vertex checked since a nearby object moved
         self._regions: list[tuple[np.ndarray, float]] = []  # balls objects moved into
         self._epoch = np.empty(0, dtype=np.int64)  # (E,) regions an edge's state and screen account for
         self._landmarks = None
         self._costs: tuple[np.ndarray, np.ndarray] | None = None
         self.counters = {"cost_updates": 0, "segment_checks": 0, "blocked": 0, "invalidated": 0,
-                         "screened_points": 0}
+                         "screened_points": 0, "witness_checks": 0}
         self.sync()
 
     # ------------------------------------------------------------------ structure
@@ -166,8 +182,12 @@ class EdgeStore:
         m = np.maximum(1, np.ceil(tau / self.quad_dt - 1e-9)).astype(np.int64)
         P, first = interior_points(Qa, Qb, m)
         state = np.zeros(len(new), dtype=np.int8)
+        wnode = np.full(len(new), -1, dtype=np.int64)
         if len(P):  # coarse screen, every quadrature node (the search's screen checks midpoints: ``screen``)
-            state[np.repeat(np.arange(len(new)), m - 1)[self.roadmap.in_collision(P)]] = BLOCKED
+            hit = np.flatnonzero(self.roadmap.in_collision(P))
+            owner = np.repeat(np.arange(len(new)), m - 1)[hit]
+            state[owner] = BLOCKED
+            wnode[owner] = hit + self._n_points
             self.counters["screened_points"] += len(P)
         if self._summed is not None:
             self._sparts = _cat([self._sparts, self._summed.prepare_sums(P, m - 1)])
@@ -180,6 +200,8 @@ class EdgeStore:
             self._pkey = kp if len(self._pkey) == 0 else np.concatenate([self._pkey, kp])
             self._box = np.concatenate([self._box, self._boxes(new, kp, first, m)])
         self._screened = np.concatenate([self._screened, np.ones(len(new), dtype=bool)])
+        self._wnode = np.concatenate([self._wnode, wnode])
+        self._wvert = np.concatenate([self._wvert, np.full(len(new), -1, dtype=np.int64)])
         self._epoch = np.concatenate([self._epoch, np.full(len(new), len(self._regions))])
         self.ends, self.tau, self.m = np.concatenate([self.ends, new]), np.concatenate([self.tau, tau]), \
             np.concatenate([self.m, m])
@@ -210,8 +232,8 @@ class EdgeStore:
 
         ``landmarks``: new landmark poses (whatever the step cost takes): every cost is stale.
         ``vacated``, ``occupied``: ``(centre (3,), radius)`` in the keypoints' frame, a ball an
-        object left or now takes. Blocked edges passing near a vacated ball are reset to
-        ``UNKNOWN`` now; free and screened edges passing near an occupied ball are judged again
+        object left or now takes. Blocked edges whose witness (else whose motion) passes near a
+        vacated ball are reset to ``UNKNOWN`` now; free and screened edges passing near an occupied ball are judged again
         when a path or its screen reaches them (``check``, ``screen``). Returns the number of
         edges reset now.
         """
@@ -221,8 +243,8 @@ class EdgeStore:
         if vacated is not None:
             c, r = np.asarray(vacated[0], dtype=float).reshape(3), float(vacated[1])
             blocked = np.flatnonzero(self.state == BLOCKED)
-            reset = blocked[self._near(blocked, c, r)]
-            self.state[reset] = UNKNOWN
+            reset = blocked[self._near_witness(blocked, c, r)]
+            self.state[reset] = UNKNOWN  # the witness stays: ``screen`` and ``check`` try it first
             self._screened[reset] = False
             self.counters["invalidated"] += len(reset)
         if occupied is not None:
@@ -239,6 +261,22 @@ class EdgeStore:
         near = np.linalg.norm(gap, axis=1) <= r
         if near.any():
             near[near] = self._polyline_near(eids[near], c, r)
+        return near
+
+    def _near_witness(self, eids: np.ndarray, c: np.ndarray, r: float) -> np.ndarray:
+        """``(len(eids),)`` bool, for blocked edges: what made the edge collide may have been
+        within ``r`` of ``c``. With a witness (a configuration found colliding on it), its keypoint
+        polyline passes within ``r + sweep_margin`` of ``c``; without one, the edge's motion does
+        (``_near``)."""
+        if self.keypoint_fn is None:
+            return np.ones(len(eids), dtype=bool)
+        wn, wv = self._wnode[eids], self._wvert[eids]
+        by_node, by_vertex = wn >= 0, (wn < 0) & (wv >= 0)
+        rest = ~(by_node | by_vertex)
+        near = np.zeros(len(eids), dtype=bool)
+        near[by_node] = _polyline_distance(self._pkey[wn[by_node]], c) <= r + self.sweep_margin
+        near[by_vertex] = _polyline_distance(self._vkey[wv[by_vertex]], c) <= r + self.sweep_margin
+        near[rest] = self._near(eids[rest], c, r)
         return near
 
     def _refresh(self, eids: np.ndarray) -> None:
@@ -273,19 +311,17 @@ class EdgeStore:
         pidx = np.repeat(first, cnt) + np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
         K = np.concatenate([self._vkey[u], self._vkey[w], self._pkey[pidx]])  # (N, K, 3)
         who = np.concatenate([np.arange(len(eids)), np.arange(len(eids)), owner])
-        a, b = K[:, :-1], K[:, 1:]  # (N, K-1, 3) link segments
-        ab = b - a
-        s = np.clip(((c - a) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0.0, 1.0)
-        dist = np.linalg.norm(a + s[..., None] * ab - c, axis=-1).min(1)  # (N,)
+        dist = _polyline_distance(K, c)  # (N,)
         best = np.full(len(eids), np.inf)
         np.minimum.at(best, who, dist)
         return best <= r + self.sweep_margin + self._half_spacing(self.ends[eids], m)
 
     def screen(self, eids) -> int:
-        """Point-check the midpoints of the unknown, unscreened edges among ``eids`` in one
-        batch (``roadmap.in_collision``); those whose midpoint collides become ``BLOCKED``. A
-        cheap first look near a collision; the segment check stays the final word. Returns how
-        many were blocked.
+        """Point-check one configuration of each unknown, unscreened edge among ``eids`` in one
+        batch (``roadmap.in_collision``): its witness if it has one, else its middle quadrature
+        node (the midpoint when ``m`` is even); those that collide become ``BLOCKED``. A cheap
+        first look near a collision; the segment check stays the final word. Returns how many
+        were blocked.
 
         One point per edge, not every quadrature node: measured on the pour's reaction to a moved
         bowl (docs/EXPERIMENTS.md, *The point screen: one point per edge*), the nodes cost twice
@@ -299,31 +335,68 @@ class EdgeStore:
         verts = verts[~self._vscreened[verts]]
         if len(verts):  # a vertex an object moved onto blocks every edge it has
             self._vscreened[verts] = True
-            bad = verts[self.roadmap.in_collision(self.roadmap.vertices[verts])]
-            if len(bad):
-                self.set_blocked(np.flatnonzero(np.isin(self.ends, bad).any(axis=1)))
-                eids = eids[self.state[eids] == UNKNOWN]
-        eids = eids[self.m[eids] > 1]
+            for v in verts[self.roadmap.in_collision(self.roadmap.vertices[verts])].tolist():
+                self.set_blocked(self.incident(v), at_vertex=v)
+            eids = eids[self.state[eids] == UNKNOWN]
+        eids = eids[(self.m[eids] > 1) | (self._wnode[eids] >= 0) | (self._wvert[eids] >= 0)]
         if len(eids) == 0:
             return 0
-        V = self.roadmap.vertices
         self.counters["screened_points"] += len(eids)
-        hit = self.roadmap.in_collision(0.5 * (V[self.ends[eids, 0]] + V[self.ends[eids, 1]]))
+        Q, wn, wv = self._probe(eids)
+        hit = self.roadmap.in_collision(Q)
         self.set_blocked(eids[hit])
+        self._wnode[eids[hit]], self._wvert[eids[hit]] = wn[hit], wv[hit]
         return int(hit.sum())
 
-    def set_blocked(self, eids) -> None:
-        """Mark edges as colliding (e.g. every edge of a vertex found in collision)."""
+    def _probe(self, eids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The point to check first on each edge: its witness (a configuration found colliding
+        on it before) if it has one, else its middle quadrature node (the midpoint when m is even;
+        m > 1). ``(Q (n, d), wnode (n,), wvert (n,))``: the configurations and, as witnesses,
+        their interior rows or vertices (-1 where not)."""
+        wn, wv = self._wnode[eids].copy(), self._wvert[eids].copy()
+        mid = (wn < 0) & (wv < 0)
+        wn[mid] = self._first[eids[mid]] + self.m[eids[mid]] // 2 - 1
+        by_vertex = wn < 0
+        Q = self._node_configurations(eids, np.where(by_vertex, 0, wn - self._first[eids] + 1))
+        Q[by_vertex] = self.roadmap.vertices[wv[by_vertex]]
+        return Q, wn, wv
+
+    def _node_configurations(self, eids: np.ndarray, k: np.ndarray) -> np.ndarray:
+        """``(len(eids), d)``: quadrature node ``k`` (``0..m``) of each edge."""
+        V = self.roadmap.vertices
+        u, w = V[self.ends[eids, 0]], V[self.ends[eids, 1]]
+        return u + (w - u) * (k / self.m[eids])[:, None]
+
+    def incident(self, v: int) -> np.ndarray:
+        """``(deg,)`` the ids of the edges at vertex ``v``."""
+        return np.fromiter((e for _, _, e in self.roadmap.graph.edges(int(v), data="eid")), dtype=np.int64)
+
+    def set_blocked(self, eids, at_vertex: int | None = None) -> None:
+        """Mark edges as colliding; ``at_vertex``: their end vertex found in collision, if that
+        is why (a witness: ``invalidate`` resets such an edge only when an object leaves near
+        that vertex)."""
         eids = np.asarray(eids, dtype=np.int64)
         self.counters["blocked"] += int((self.state[eids] != BLOCKED).sum())
         self.state[eids] = BLOCKED
+        self._wnode[eids] = -1
+        self._wvert[eids] = -1 if at_vertex is None else int(at_vertex)
 
     def check(self, eids) -> np.ndarray:
-        """Settle the collision state of ``eids`` (unknown ones checked now); ``(len,)`` bool free."""
+        """Settle the collision state of ``eids`` (unknown ones checked now: the witness first,
+        if any, then the segment); ``(len,)`` bool free."""
         eids = np.asarray(eids, dtype=np.int64).reshape(-1)
         self._refresh(np.unique(eids))
         V = self.roadmap.vertices
-        for e in eids[self.state[eids] == UNKNOWN].tolist():
+        todo = np.unique(eids[self.state[eids] == UNKNOWN])
+        known = todo[(self._wnode[todo] >= 0) | (self._wvert[todo] >= 0)]
+        if len(known):  # a configuration that collided before, checked first
+            Q, _, _ = self._probe(known)
+            self.counters["witness_checks"] += len(known)
+            hit = known[self.roadmap.in_collision(Q)]
+            self.state[hit] = BLOCKED
+            self.counters["blocked"] += len(hit)
+        for e in todo[self.state[todo] == UNKNOWN].tolist():
+            self._wnode[e] = self._wvert[e] = -1
             u, w = self.ends[e]
             self.counters["segment_checks"] += 1
             hit = self.roadmap.segment_collides(V[u], V[w])

@@ -332,9 +332,9 @@ class ClosedLoopPlanner:
                 if not E.check([r])[0]:
                     hit = True
                     for v in E.ends[r]:
-                        incident = [e for _, _, e in rm.graph.edges(int(v), data="eid")]
+                        incident = E.incident(v)
                         if rm.in_collision(rm.vertices[v][None])[0]:  # e.g. an object moved onto it
-                            E.set_blocked(incident)
+                            E.set_blocked(incident, at_vertex=int(v))
                         else:  # an obstacle is near: a cheap look at the other ways out of v
                             E.screen(incident)
             else:
