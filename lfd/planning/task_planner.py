@@ -26,9 +26,10 @@ landmark is out of the arm's reach) and the learned transitions cannot skip that
 
 Interactive rates. A landmark update only marks the edge costs stale (``lfd.planning.edgestore``): the
 next plan recomputes all of them in one batch from per-configuration parts prepared once
-(``lfd.planning.stepcost.ModelStepCost``). Sensed landmarks are obstacles too: when one moves, the edges
-whose motion passes within ``object_radius`` of its old or new place are checked again when a
-path uses them. The regrowth after a far move (IK and projection of new biased vertices, seconds)
+(``lfd.planning.stepcost.ModelStepCost``). Sensed landmarks are obstacles too: when one moves, the
+blocked edges it may have blocked (their witness, the configuration found colliding, within
+``object_radius`` of its old place) and the free edges whose motion passes within it of its new
+place are checked again when a path uses them (``lfd.planning.edgestore``). The regrowth after a far move (IK and projection of new biased vertices, seconds)
 is kept off the critical path when the caller asks: ``update_landmarks(..., grow=False)`` answers
 on the current roadmap, and ``grow()`` adds the vertices afterwards, after which a new plan
 improves on the first (an anytime re-plan). ``grow(rounds=1)`` adds them a sampling round at a
