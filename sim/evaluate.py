@@ -36,9 +36,10 @@ from lfd.train_cli import default_demos, ensure_demos
 from lfd.train_cli import main as train_main
 from sim.attitude import demo_tilt
 from sim.latency import parse_latency
+from sim.reach import DumpReach
 from sim.report import format_table, spread, strict_json, summarize
 from sim.runner import EXEC_PACE, init_worker, model_files, run_one, run_one_shipped
-from sim.scenarios import MAX_BASE_SEED, draw_scenarios
+from sim.scenarios import MAX_BASE_SEED, draw_scenarios, with_bowl_move
 from sim.sweep import EXECUTORS, Job, make_executor, require_ray, run_jobs
 
 __all__ = ["VARIANTS", "EvalSettings", "TrainingFailed", "Variant", "evaluate", "format_table", "run_one"]
@@ -86,7 +87,9 @@ class EvalSettings:
     scenario per variant; variants: names from ``VARIANTS``; latency: simulated time a plan costs
     (``sim.execute.ExecSettings.latency``: "measured", "none" or seconds); executor: "local" or
     "ray" (``sim.sweep``); address: a running Ray cluster's (``ray start --head``), None to
-    start a local Ray."""
+    start a local Ray; move_bowl: give every scenario that has none a mid-task bowl move
+    (``sim.scenarios.with_bowl_move``, at a quarter of the models' time steps; the pour's scenes
+    keep the bowl still otherwise, the powder's always move it)."""
 
     task: str = "powder"
     n_scenarios: int = 10
@@ -99,6 +102,7 @@ class EvalSettings:
     latency: str = "measured"
     executor: str = "local"
     address: str | None = None
+    move_bowl: bool = False
 
     def __post_init__(self):
         object.__setattr__(self, "latency", str(parse_latency(self.latency)))
@@ -254,6 +258,8 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     variants = [by_name[n] for n in settings.variants]
     log = out_dir / "runs.jsonl"
     run_settings = {"task": settings.task, "roadmap_size": settings.roadmap_size, "models": str(models)}
+    if settings.move_bowl:  # (only then: runs logged before the option existed still count)
+        run_settings["move_bowl"] = True
     done, crashed, lines, cut = _read_log(log, settings.latency, run_settings)
     if lines and not resume:
         raise UsageError(f"{out_dir} already holds {lines} logged run(s): pass --resume to continue that "
@@ -269,6 +275,10 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
                 if summary.is_file() else math.nan
         tilt[k] = demo_tilt(demos_for(settings.task, demos, k) or default_demos(settings.task))["mean"]
     sets = {S: draw_scenarios(settings.task, settings.n_scenarios, S) for S in settings.seeds}
+    if settings.move_bowl:
+        T = _time_steps([model_dir_for(models, v, k) for k in settings.demo_seeds for v in variants])
+        with DumpReach(settings.task) as reach:
+            sets = {S: [with_bowl_move(sc, T, reach) for sc in scs] for S, scs in sets.items()}
     wanted = {(v.name, k, sc.seed) for v in variants for k in settings.demo_seeds for scs in sets.values() for sc in scs}
     base_of = {sc.seed: S for S, scs in sets.items() for sc in scs}
     executor = make_executor(settings.executor, settings.workers, settings.address, initializer=init_worker)
@@ -311,6 +321,19 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     finally:
         executor.close(cancel=True)  # (run_jobs closed it already unless something failed before)
     return _write_results(settings, out_dir, models, variants, sets, done, crashed, learn_s)
+
+
+def _time_steps(model_dirs: list[Path]) -> int:
+    """The time steps ``T`` the models share (their ``summary.json``); a bowl move comes at T/4."""
+    found = {}
+    for d in model_dirs:
+        try:
+            found[d] = int(json.loads((d / "summary.json").read_text())["time_steps"])
+        except (OSError, ValueError, KeyError) as e:
+            raise UsageError(f"cannot read the time steps of the model in {d} (summary.json): {e}") from e
+    if len(set(found.values())) != 1:
+        raise UsageError(f"a bowl move needs models with the same time steps, got {found}")
+    return next(iter(found.values()))
 
 
 def _gif_path(out_dir: Path, task: str, variant: str, scenario: int) -> Path:
@@ -366,7 +389,7 @@ def _write_results(settings: EvalSettings, out_dir: Path, models: Path, variants
                for v in variants}
     payload = {"task": settings.task, "seeds": list(settings.seeds), "demo_seeds": list(settings.demo_seeds),
                "n_scenarios": settings.n_scenarios, "roadmap_size": settings.roadmap_size,
-               "latency": settings.latency, "executor": settings.executor,
+               "latency": settings.latency, "executor": settings.executor, "move_bowl": settings.move_bowl,
                "models": {f"{v.name}@demos{k}": str(model_dir_for(models, v, k))
                           for k in settings.demo_seeds for v in variants},
                "variants": results, "cells": cells, "spread": spread(cells),

@@ -85,6 +85,9 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     ap.add_argument("--demos", type=Path, default=None, metavar="DIR",
                     help="demonstrations to train missing variants on (default: ./runs/demos/<task>, "
                          "generated when empty)")
+    ap.add_argument("--move-bowl", action="store_true",
+                    help="with --evaluate: move the bowl mid-task in every scenario, at a quarter of the task "
+                         "(the pour's scenes keep it still otherwise; the powder's always move it)")
     ap.add_argument("--video", action="store_true", help="write a GIF of the first scenario of each variant")
     ap.add_argument("--out", type=Path, default=None, metavar="DIR",
                     help="output folder (default: <model>/plans, or ./runs/<task>/eval with --evaluate)")
@@ -116,6 +119,8 @@ def parse(argv=None, prog: str = PROG):
         raise UsageError(f"--demos {args.demos}: no such folder")
     if args.models is not None and args.models.exists() and not args.models.is_dir():
         raise UsageError(f"--models {args.models}: exists and is not a folder")
+    if args.move_bowl and not args.evaluate:
+        raise UsageError("--move-bowl is for --evaluate")
     if args.evaluate:
         if args.task is None:
             raise UsageError("--evaluate needs --task powder|pour")
@@ -153,7 +158,7 @@ def main(argv=None, prog: str = PROG) -> int:
         settings = EvalSettings(task=args.task, n_scenarios=args.scenarios, seeds=args.seeds,
                                 demo_seeds=args.demo_seeds, roadmap_size=args.roadmap_size, workers=args.workers,
                                 video=args.video, variants=variants, latency=args.latency,
-                                executor=args.executor, address=args.address)
+                                executor=args.executor, address=args.address, move_bowl=args.move_bowl)
         tic = time.perf_counter()
         try:
             payload = evaluate(settings, out, models, args.demos, progress, resume=args.resume)

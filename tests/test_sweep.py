@@ -6,6 +6,7 @@ simulation on Ray is in ``test_sweep_ray``."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -113,6 +114,32 @@ def test_grid_cells_spread_and_table(tmp_path, models, fakes, monkeypatch):
     assert len(paths) == 20 and all((tmp_path / "eval" / p).is_file() for p in paths)
     with pytest.raises(UsageError, match="demonstration draws other than 0"):
         ev.evaluate(_settings(demo_seeds=(3,)), tmp_path / "eval2", models, demos=tmp_path)
+
+
+def test_a_bowl_move_comes_at_a_quarter_of_the_models_time_steps(tmp_path, models, fakes, monkeypatch):
+    """``--move-bowl``: every scenario gets a move (a stand-in for ``with_bowl_move``) at T/4 of
+    the models' time steps (their ``summary.json``), the runs are logged with the setting, and
+    models without their time steps or disagreeing on them are refused."""
+    seen = []
+
+    def fake_move(sc, T, reach):
+        seen.append(T)
+        return replace(sc, bowl_after=(0.7, 0.2), move_at_step=T // 4)
+
+    monkeypatch.setattr(ev, "with_bowl_move", fake_move)
+    monkeypatch.setattr(ev, "DumpReach", lambda task: contextlib.nullcontext(None))
+    both = ("learned+learned", "learned+manual")
+    with pytest.raises(UsageError, match="time steps"):  # no summary.json yet
+        ev.evaluate(_settings(move_bowl=True, variants=both), tmp_path / "e1", models)
+    for v, T in zip(ev.VARIANTS[:2], (48, 24)):
+        (ev.model_dir_for(models, v) / "summary.json").write_text(json.dumps({"time_steps": T}))
+    with pytest.raises(UsageError, match="same time steps"):
+        ev.evaluate(_settings(move_bowl=True, variants=both), tmp_path / "e2", models)
+    payload = ev.evaluate(_settings(move_bowl=True, seeds=(0,)), tmp_path / "eval", models)
+    assert seen == [48] * 5 and payload["move_bowl"] is True
+    assert [(sc["move_at_step"], sc["bowl_after"]) for sc in payload["scenario_set"]] == [(12, [0.7, 0.2])] * 5
+    rows = [json.loads(line) for line in (tmp_path / "eval" / "runs.jsonl").read_text().splitlines()]
+    assert len(rows) == 5 and all(r["settings"]["move_bowl"] is True for r in rows)
 
 
 def test_crashed_runs_are_logged_counted_apart_and_run_again_on_resume(tmp_path, models, fakes, monkeypatch):

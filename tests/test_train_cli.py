@@ -200,6 +200,7 @@ CASES = [
     ("plan-model-incomplete", _plan(model=_incomplete_model), "not an lfd task model (missing model.pt)"),
     ("plan-evaluate-no-task", _plan("--evaluate"), "--evaluate needs --task"),
     ("plan-roadmap-size", _plan("--roadmap-size", "5", model=lambda d: d), "--roadmap-size must be at least 10"),
+    ("plan-move-bowl-once", _plan("--move-bowl", model=lambda d: d), "--move-bowl is for --evaluate"),
     # plan.py with a model that cannot plan in the simulated scenarios: refused before any simulation
     ("plan-model-other-landmarks", _plan(model=_model),
      "needs landmark(s) ['cup'], which the powder scenarios do not sense; they provide ['bowl', 'marker_1', "),
