@@ -447,8 +447,9 @@ def test_the_search_screen_checks_midpoints_and_the_construction_screen_every_no
     """``EdgeStore.screen`` (the search's first look near a collision) checks one point per
     edge, its midpoint: an edge whose midpoint collides is blocked, one that collides elsewhere
     is left to the segment check. The screen of edges as they are added checks every
-    quadrature node. Three vertices, two small boxes: one on edge 0-1's midpoint, one a quarter
-    of the way along edge 0-2; edge 1-2 is free."""
+    quadrature node when the store is made; edges added later are left to the search's screens.
+    Three vertices, two small boxes: one on edge 0-1's midpoint, one a quarter of the way along
+    edge 0-2; edge 1-2 is free."""
     boxes: list = []
 
     def collides(q) -> bool:
@@ -483,6 +484,16 @@ def test_the_search_screen_checks_midpoints_and_the_construction_screen_every_no
     # the boxes are there when the edges are added: every node is checked, both edges blocked
     E, e01, e02, e12 = store()
     assert E.state[e01] == BLOCKED and E.state[e02] == BLOCKED and E.state[e12] == UNKNOWN
+    # edges a regrowth adds later are not screened when added, only when the search reaches them
+    rm = E.roadmap
+    (v3,) = rm.add_vertices(np.array([[1.0, 1.0]]), check=False)
+    rm.add_edges([(0, int(v3))])  # (already joined when k-nearest covers it); its midpoint (0.5, 0.5) is free
+    before = E.counters["screened_points"]
+    E.sync()
+    (e03,) = [e for e in range(len(E.ends)) if set(E.ends[e]) == {0, int(v3)}]
+    assert E.counters["screened_points"] == before and E.state[e03] == UNKNOWN
+    boxes.append((np.array([0.7, 0.7]), np.array([0.8, 0.8])))  # on the new edge, off its midpoint
+    assert E.screen([e03]) == 0 and E.check([e03]).tolist() == [False]
 
 
 def test_an_object_that_leaves_frees_only_the_edges_it_blocked():

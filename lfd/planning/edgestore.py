@@ -161,7 +161,8 @@ class EdgeStore:
         return 0 if self._vparts is None else len(self._vparts[0])
 
     def sync(self) -> None:
-        """Take in the vertices and edges the roadmap gained since the last call."""
+        """Take in the vertices and edges the roadmap gained since the last call (the first
+        call's edges screened at every quadrature node, later ones left unscreened)."""
         rm = self.roadmap
         V = rm.vertices
         n0 = self.n_vertices
@@ -183,7 +184,12 @@ class EdgeStore:
         P, first = interior_points(Qa, Qb, m)
         state = np.zeros(len(new), dtype=np.int8)
         wnode = np.full(len(new), -1, dtype=np.int64)
-        if len(P):  # coarse screen, every quadrature node (the search's screen checks midpoints: ``screen``)
+        # the store's first edges (the roadmap as built) are screened at every quadrature node;
+        # edges a regrowth adds are left to the search's screens (``screen``) and segment checks:
+        # their node screen sat on the anytime re-plan's critical path (docs/EXPERIMENTS.md,
+        # *Witnesses*, the regrowth's edges)
+        screen_all = e0 == 0
+        if len(P) and screen_all:
             hit = np.flatnonzero(self.roadmap.in_collision(P))
             owner = np.repeat(np.arange(len(new)), m - 1)[hit]
             state[owner] = BLOCKED
@@ -199,7 +205,7 @@ class EdgeStore:
             kp = np.asarray(self.keypoint_fn(P), dtype=float).reshape(len(P), self._vkey.shape[1], 3)
             self._pkey = kp if len(self._pkey) == 0 else np.concatenate([self._pkey, kp])
             self._box = np.concatenate([self._box, self._boxes(new, kp, first, m)])
-        self._screened = np.concatenate([self._screened, np.ones(len(new), dtype=bool)])
+        self._screened = np.concatenate([self._screened, np.full(len(new), screen_all)])
         self._wnode = np.concatenate([self._wnode, wnode])
         self._wvert = np.concatenate([self._wvert, np.full(len(new), -1, dtype=np.int64)])
         self._epoch = np.concatenate([self._epoch, np.full(len(new), len(self._regions))])
