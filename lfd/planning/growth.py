@@ -77,10 +77,13 @@ class BiasedGrowth:
     """Biased vertices of ``model``'s sampled executions for each landmark place, added to the
     roadmap given to each call; ``generator``: the torch
     generator of every draw (shared with the caller's other samples, so that one seed fixes
-    the roadmap); ``max_vertices``: the roadmap never grows past it."""
+    the roadmap); ``max_vertices``: the roadmap never grows past it; ``regrow``: biased samples
+    drawn for a new landmark place."""
 
-    def __init__(self, model: TaskModel, settings: TaskPlannerSettings, generator: torch.Generator, max_vertices: int):
+    def __init__(self, model: TaskModel, settings: TaskPlannerSettings, generator: torch.Generator, max_vertices: int,
+                 regrow: int):
         self.model, self.settings, self._gen, self.max_vertices = model, settings, generator, int(max_vertices)
+        self.regrow = int(regrow)
         tool = model.tool_features
         task_sd = torch.linalg.eigvalsh(model.covariances.detach()[:, tool, tool]).amax(-1).sqrt()  # (T,) tool point
         self._task_steps = (task_sd <= TASK_STEP_SD).cpu().numpy()  # (T,) bool
@@ -196,14 +199,14 @@ class BiasedGrowth:
         if dist[nearest] <= s.regrow_distance:
             self._unreachable = self._grown_for[nearest][1]
             return None
-        if min(room, s.regrow_vertices) <= 0 or not s.bias_fraction:
+        if min(room, self.regrow) <= 0 or not s.bias_fraction:
             # the roadmap is full: a few sampled executions, IK only, still give the verdict
             _, _, steps, reached = biased_configurations(self.model, landmarks, 4 * self.model.mu.shape[0],
                                                          self._gen, project_iters=0)
             self._remember(pos, self._verdict(reached.reshape(-1, steps).any(0)))
             return None
         self.stats["regrows"] += 1
-        return self._new_growth(pos, min(room, s.regrow_vertices), budget=room)
+        return self._new_growth(pos, min(room, self.regrow), budget=room)
 
     def _verdict(self, reached: np.ndarray) -> np.ndarray:
         """Task-relevant time steps whose tool-point targets no sampled execution reached

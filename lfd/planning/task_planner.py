@@ -49,7 +49,7 @@ from lfd.planning.growth import BiasedGrowth
 from lfd.planning.planner import ClosedLoopPlanner, PlanResult
 from lfd.planning.roadmap import Roadmap
 from lfd.planning.stepcost import FK_BATCH, ModelStepCost
-from lfd.planning.task_settings import TaskPlannerSettings, default_vertices
+from lfd.planning.task_settings import REGROW_SHARE, TaskPlannerSettings, default_vertices
 
 __all__ = ["TaskPlanner", "TaskPlannerSettings"]  # the settings live in lfd.planning.task_settings
 
@@ -90,7 +90,9 @@ class TaskPlanner:
         self._landmarks: torch.Tensor | None = None  # (Z, 4, 4) kept landmarks, model order
         self._sensed: dict[str, np.ndarray] = {}  # every sensed landmark's last position (3,)
         self.growth_pending = False
-        self._growth = BiasedGrowth(model, settings, self._gen, settings.max_vertices or 3 * self.n_vertices)
+        regrow = settings.regrow_vertices
+        self._growth = BiasedGrowth(model, settings, self._gen, settings.max_vertices or 3 * self.n_vertices,
+                                    round(REGROW_SHARE * self.n_vertices) if regrow is None else regrow)
         self.roadmap: Roadmap | None = None
         self.planner: ClosedLoopPlanner | None = None
         self._missing: str | None = None

@@ -7,9 +7,10 @@ from dataclasses import dataclass, field
 from lfd.planning.planner import PlannerSettings
 from lfd.planning.roadmap import RoadmapSettings
 
-__all__ = ["TaskPlannerSettings", "default_vertices"]
+__all__ = ["REGROW_SHARE", "TaskPlannerSettings", "default_vertices"]
 
 DEFAULT_VERTICES, DEFAULT_VERTICES_STEPS = 1000, 24  # roadmap size for a model of this many steps
+REGROW_SHARE = 0.4  # biased samples drawn for a landmark's new place, as a share of the roadmap size
 
 
 def default_vertices(time_steps: int) -> int:
@@ -38,7 +39,9 @@ class TaskPlannerSettings:
     free-posture ones (the demonstrated tool pose held by any arm posture IK finds from a uniform
     start) alternating with moved-posture ones;
     regrow_distance: landmark motion (m) that triggers new biased samples; regrow_vertices: how
-    many; max_vertices: the roadmap never grows past this (default 3 x the roadmap size), so a long run
+    many (None: ``REGROW_SHARE`` of the roadmap size, 400 for a 24-step model, as many sampled
+    executions whatever the model's length: a fixed 400 gave the 48-step pour half as many, and
+    its plans after a bowl move poured beside the bowl); max_vertices: the roadmap never grows past this (default 3 x the roadmap size), so a long run
     of landmark moves cannot grow memory without bound; object_radius: a sensed landmark is also an
     obstacle of about this radius (m): when it moves, edges passing near its old or new place are
     checked again; seed: of every random draw. A configuration costs the Mahalanobis term of Eq. 3
@@ -53,7 +56,7 @@ class TaskPlannerSettings:
     min_free_per_step: int = 3
     extra_posture_rounds: int = 3
     regrow_distance: float = 0.10
-    regrow_vertices: int = 400
+    regrow_vertices: int | None = None
     max_vertices: int | None = None
     object_radius: float = 0.13
     seed: int = 0
@@ -76,6 +79,6 @@ class TaskPlannerSettings:
                              f"{self.posture_share}, {self.posture_spread}")
         if not self.object_radius >= 0:
             raise ValueError(f"object_radius must be >= 0, got {self.object_radius}")
-        if self.regrow_distance <= 0 or self.regrow_vertices < 0:
+        if self.regrow_distance <= 0 or (self.regrow_vertices is not None and self.regrow_vertices < 0):
             raise ValueError("regrow_distance must be > 0 and regrow_vertices >= 0, got "
                              f"{self.regrow_distance}, {self.regrow_vertices}")
