@@ -267,16 +267,16 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     if settings.executor == "ray":
         require_ray(settings.address)  # before hours of training, not after
     out_dir.mkdir(parents=True, exist_ok=True)
-    learn_s, tilt = {}, {}
+    summaries, tilt = {}, {}
     for k in settings.demo_seeds:
         for v in variants:
             summary = ensure_model(settings.task, models, demos, v, demo_seed=k) / "summary.json"
-            learn_s[v.name, k] = json.loads(summary.read_text()).get("learning_time_s", math.nan) \
-                if summary.is_file() else math.nan
+            summaries[v.name, k] = json.loads(summary.read_text()) if summary.is_file() else {}
         tilt[k] = demo_tilt(demos_for(settings.task, demos, k) or default_demos(settings.task))["mean"]
+    learn_s = {key: sm.get("learning_time_s", math.nan) for key, sm in summaries.items()}
     sets = {S: draw_scenarios(settings.task, settings.n_scenarios, S) for S in settings.seeds}
     if settings.move_bowl:
-        T = _time_steps([model_dir_for(models, v, k) for k in settings.demo_seeds for v in variants])
+        T = _time_steps(summaries)
         with DumpReach(settings.task) as reach:
             sets = {S: [with_bowl_move(sc, T, reach) for sc in scs] for S, scs in sets.items()}
     wanted = {(v.name, k, sc.seed) for v in variants for k in settings.demo_seeds for scs in sets.values() for sc in scs}
@@ -323,14 +323,13 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     return _write_results(settings, out_dir, models, variants, sets, done, crashed, learn_s)
 
 
-def _time_steps(model_dirs: list[Path]) -> int:
-    """The time steps ``T`` the models share (their ``summary.json``); a bowl move comes at T/4."""
-    found = {}
-    for d in model_dirs:
-        try:
-            found[d] = int(json.loads((d / "summary.json").read_text())["time_steps"])
-        except (OSError, ValueError, KeyError) as e:
-            raise UsageError(f"cannot read the time steps of the model in {d} (summary.json): {e}") from e
+def _time_steps(summaries: dict) -> int:
+    """The time steps ``T`` the models share (``summaries``: each model's ``summary.json`` by
+    (variant, demonstration draw)); a bowl move comes at T/4."""
+    found = {key: sm.get("time_steps") for key, sm in summaries.items()}
+    missing = [key for key, T in found.items() if not isinstance(T, int)]
+    if missing:
+        raise UsageError(f"cannot read the time steps of the model(s) {missing} (summary.json)")
     if len(set(found.values())) != 1:
         raise UsageError(f"a bowl move needs models with the same time steps, got {found}")
     return next(iter(found.values()))

@@ -344,7 +344,7 @@ class EdgeStore:
             for v in verts[self.roadmap.in_collision(self.roadmap.vertices[verts])].tolist():
                 self.set_blocked(self.incident(v), at_vertex=v)
             eids = eids[self.state[eids] == UNKNOWN]
-        eids = eids[(self.m[eids] > 1) | (self._wnode[eids] >= 0) | (self._wvert[eids] >= 0)]
+        eids = eids[(self.m[eids] > 1) | self._witnessed(eids)]
         if len(eids) == 0:
             return 0
         self.counters["screened_points"] += len(eids)
@@ -353,6 +353,10 @@ class EdgeStore:
         self.set_blocked(eids[hit])
         self._wnode[eids[hit]], self._wvert[eids[hit]] = wn[hit], wv[hit]
         return int(hit.sum())
+
+    def _witnessed(self, eids: np.ndarray) -> np.ndarray:
+        """``(len(eids),)`` bool: the edge has a witness."""
+        return (self._wnode[eids] >= 0) | (self._wvert[eids] >= 0)
 
     def _probe(self, eids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The point to check first on each edge: its witness (a configuration found colliding
@@ -394,7 +398,7 @@ class EdgeStore:
         self._refresh(np.unique(eids))
         V = self.roadmap.vertices
         todo = np.unique(eids[self.state[eids] == UNKNOWN])
-        known = todo[(self._wnode[todo] >= 0) | (self._wvert[todo] >= 0)]
+        known = todo[self._witnessed(todo)]
         if len(known):  # a configuration that collided before, checked first
             Q, _, _ = self._probe(known)
             self.counters["witness_checks"] += len(known)
