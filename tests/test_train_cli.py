@@ -186,7 +186,7 @@ CASES = [
     ("subsample-no-task-json", _no_task_json, "has no task.json, where the model's sampling interval is kept"),
     ("subsample-word", _train("--subsample", "half"), "argument --subsample: invalid int value: 'half'"),
     ("floor-zero", _train("--floor-task", "0"),
-     "FitConfig.floor_joint, floor_task, floor_attitude and floor_velocity must be positive standard deviations, got 0.001, 0.0, 0.01, 0.01"),
+     "FitConfig.floor_joint, floor_task and floor_attitude must be positive standard deviations, got 0.001, 0.0, 0.01"),
     ("floor-attitude-paper", _train("--floor-attitude", "0.02", "--features", "paper"),
      "--floor-attitude applies to the attitude features"),
     ("bad-features", _train("--features", "orientation"), "argument --features: invalid choice: 'orientation'"),

@@ -3,8 +3,8 @@
 ``FitData`` holds everything that does not depend on zeta or eta (forward kinematics computed
 once); ``EMFitter`` runs EM from one initial alignment (one restart of ``fit``). The objective
 and the profiled M-step are described in ``lfd.learning.learn``'s docstring; shapes: ``N`` observations
-of ``M`` demonstrations, ``T`` time steps, ``F = d + 3`` features (``d + 9`` with the attitude; 3
-more with the tool point's velocity, ``FitConfig.tool_velocity``), ``Z`` landmarks.
+of ``M`` demonstrations, ``T`` time steps, ``F = d + 3`` features (``d + 9`` with the attitude),
+``Z`` landmarks.
 """
 
 from __future__ import annotations
@@ -36,10 +36,9 @@ EM_FAILURES = (FloatingPointError, torch.linalg.LinAlgError)
 class FitData:
     """The demonstrations as tensors, and everything that does not depend on zeta or eta."""
 
-    def __init__(self, demoset, kin, dtype, device, feature_set: str = "paper", tool_velocity: bool = False):
-        self.feature_set, self.tool_velocity = feature_set, bool(tool_velocity)
-        self.n_model = 3 * TASK_VECTORS[feature_set]  # the model's task features after the joint angles
-        self.n_task = self.n_model + (3 if self.tool_velocity else 0)  # and the fit's
+    def __init__(self, demoset, kin, dtype, device, feature_set: str = "paper"):
+        self.feature_set = feature_set
+        self.n_task = 3 * TASK_VECTORS[feature_set]  # task features after the joint angles
         self.M = len(demoset.demos)
         self.lengths = [d.n_samples for d in demoset.demos]
         self.N = sum(self.lengths)
@@ -72,24 +71,12 @@ class FitData:
             self.lm_demo = torch.arange(self.M, device=device)
             self.lm_counts = torch.tensor(self.lengths, dtype=dtype, device=device)
         self.T_lm_world = landmarks_inverse_tensor(torch.as_tensor(lm, dtype=dtype, device=device))  # (R, Z, 4, 4)
-        # each observation's neighbours within its demonstration (itself at an end) and the time
-        # between them: the tool point's velocity by central differences, one-sided at the ends
-        i = torch.arange(self.N, device=device)
-        first = torch.as_tensor(np.cumsum([0] + self.lengths[:-1]), device=device)[self.demo]  # (N,)
-        last = first + torch.as_tensor(self.lengths, device=device)[self.demo] - 1
-        self._before, self._after = torch.maximum(i - 1, first), torch.minimum(i + 1, last)  # (N,)
-        self._span = ((self._after - self._before).clamp(min=1).to(dtype) * demoset.dt)[:, None]  # (N, 1) s
 
     def features(self, tool, w, T_lm_world=None):
-        """``f (N, F)`` and the linear parts ``A (R, 3, 3)`` of ``K_virt^-1`` per landmark row.
-
-        With ``tool_velocity`` the last three are the tool point's velocity in the virtual
-        landmark frame (m/s), differences of the tool-point features within each demonstration."""
+        """``f (N, F)`` and the linear parts ``A (R, 3, 3)`` of ``K_virt^-1`` per landmark row."""
         K = torch.einsum("z,rzij->rij", w, self.T_lm_world if T_lm_world is None else T_lm_world)
         x = task_features_tensor(task_vectors_tensor(self.T_world_ee, tool, self.feature_set),
-                                 K[self.lm_row])  # (N, n_model)
-        if self.tool_velocity:
-            x = torch.cat([x, (x[self._after, :3] - x[self._before, :3]) / self._span], dim=1)  # (N, n_task)
+                                 K[self.lm_row])  # (N, n_task)
         return torch.cat([self.q, x], dim=1), K[:, :3, :3]
 
     def pad(self, per_obs):
@@ -107,10 +94,9 @@ class EMFitter:
         self.d, self.F = d, d + data.n_task
         self.T_lm = data.T_lm_world[:, landmark_idx]  # (R, Z', 4, 4)
         self.Z = len(landmark_idx)
-        # each feature's group: the joints, the tool point, the attitude, the tool point's velocity
-        n_vel = data.n_task - data.n_model
-        group = torch.tensor([0] * d + [1] * 3 + [2] * (data.n_model - 3) + [3] * n_vel, device=device)  # (F,)
-        self.floor = torch.tensor([cfg.floor_joint, cfg.floor_task, cfg.floor_attitude, cfg.floor_velocity],
+        # each feature's group: the joints, the tool point, the attitude
+        group = torch.tensor([0] * d + [1] * 3 + [2] * (data.n_task - 3), device=device)  # (F,)
+        self.floor = torch.tensor([cfg.floor_joint, cfg.floor_task, cfg.floor_attitude],
                                   dtype=dtype, device=device)[group]  # (F,)
         self.nu = float(cfg.floor_weight) if cfg.floor_weight is not None else data.N / self.T
         self.s = float(cfg.logdet_scale)

@@ -103,14 +103,6 @@ class FitConfig:
     floor_joint, floor_task, floor_attitude : the variance-floor prior's standard deviations
         (lfd.learning.priors) of the joint angles (rad), the tool point (m) and the axes (unit
         vectors' components).
-    tool_velocity : also fit the tool point's velocity in the virtual landmark frame, three more
-        features in a block of their own that choose zeta and the alignments and are left out of
-        the model (``lfd.learning.learn``; beyond the paper, docs/DESIGN.md). Default False (the
-        paper). Measured on five pour demonstration draws: the learned tool points 11.6 cm apart
-        without it (the spout in one draw, 8-16 cm from it in the others, where the stream was
-        aimed), within 2.3 cm of each other and 1.1-2.8 cm of the spout with it
-        (docs/EXPERIMENTS.md).
-    floor_velocity : the variance-floor prior's standard deviation of the velocity (m/s).
     floor_weight : its pseudo-observations ``nu``; None = mean observations per time step.
     volume_prior : add ``-2 log|det A|`` per observation (lfd.learning.priors); zero for aligned frames.
     tool_radius : metres from the gripper's origin the learned tool point may lie (the tool's
@@ -164,8 +156,6 @@ class FitConfig:
     floor_task: float = 1e-3
     floor_attitude: float = 1e-2
     features: str = "paper"
-    tool_velocity: bool = False
-    floor_velocity: float = 1e-2
     floor_weight: float | None = None
     volume_prior: bool = True
     trans_floor: float = 0.01
@@ -212,13 +202,9 @@ class FitConfig:
         if len(set(self.offsets)) != len(self.offsets) or not {0, 1} <= set(self.offsets):
             raise ValueError(f"FitConfig.offsets must be distinct, non-negative and include 0 and 1 (a "
                              f"sample may stay in its step or move to the next); got {self.offsets}")
-        floors = (self.floor_joint, self.floor_task, self.floor_attitude, self.floor_velocity)
-        if not all(math.isfinite(x) and x > 0 for x in floors):
-            raise ValueError(f"FitConfig.floor_joint, floor_task, floor_attitude and floor_velocity must be positive "
-                             f"standard deviations, got {', '.join(map(str, floors))}")
-        if not isinstance(self.tool_velocity, (bool, np.bool_)):
-            raise TypeError(f"FitConfig.tool_velocity must be True or False, got {self.tool_velocity!r}")
-        object.__setattr__(self, "tool_velocity", bool(self.tool_velocity))
+        if not all(math.isfinite(x) and x > 0 for x in (self.floor_joint, self.floor_task, self.floor_attitude)):
+            raise ValueError(f"FitConfig.floor_joint, floor_task and floor_attitude must be positive standard "
+                             f"deviations, got {self.floor_joint}, {self.floor_task}, {self.floor_attitude}")
         if not (math.isfinite(self.tool_radius) and self.tool_radius > 0):
             raise ValueError(f"FitConfig.tool_radius must be a positive distance in metres, got {self.tool_radius}")
         if not 0 <= self.prune_threshold < 1:

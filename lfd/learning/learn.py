@@ -15,14 +15,6 @@ env weights are ``w = w_ref + B u`` with ``B (Z, Z-1)`` an orthonormal basis of 
 (the tangent space of the constraint, Sec. IV-A); weights may be negative. After each M-step
 ``w`` is re-projected to sum exactly to 1 (to rounding).
 
-Tool point's velocity (``FitConfig.tool_velocity``, beyond the paper; docs/DESIGN.md). A person
-turns a tool about its working point (the pitcher about its spout), which Eq. 2 cannot see: it
-scores configurations, not motions. With the option the fit adds the tool point's velocity in the
-virtual landmark frame as three features of their own block; a point the demonstrator turned
-the tool about moves alike in every demonstration, one off it sweeps an arc at each person's
-speed. They shape zeta and the alignments only: the model keeps the marginal of the rest (the
-leading blocks of ``mu`` and ``sigma_inv``), so the planner scores configurations as before.
-
 This module holds the restarts and pruning; the settings and the result are in
 ``lfd.learning.fitconfig``, the EM steps in ``lfd.learning.em``.
 After each restart ``fit`` reports a ``lfd.learning.checkpoint.FitProgress`` (``on_restart``) and can
@@ -338,7 +330,7 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     _check_inputs(demoset, cfg)
     check_learnable(demoset, cfg)
     fixed = _fixed_landmarks(demoset, cfg)
-    data = FitData(demoset, kin, dtype, device, cfg.features, cfg.tool_velocity)
+    data = FitData(demoset, kin, dtype, device, cfg.features)
     t_fk = time.perf_counter() - t0
     torch.manual_seed(cfg.seed)
 
@@ -372,17 +364,12 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     if note:
         log.note(note)
     kept_names = tuple(names[i] for i in kept)
-    # the velocity's block (the fit's last features) is the fit's alone; the model's Gaussians are
-    # the marginals of the rest: the leading blocks of mu and of the inverse Cholesky factor
-    F = data.q.shape[1] + data.n_model
-    mu, sigma_inv = mu[:, :F], sigma_inv[:, :F, :F]
     task = replace(demoset.task, subsample=1) if demoset.task is not None else None  # its stride is spent
     model = TaskModel(tool, w, mu, sigma_inv, log_trans, kept_names, demoset.robot, task,
                       all_landmark_names=names, offsets=cfg.offsets, covariance=cfg.covariance,
                       logdet_scale=cfg.logdet_scale, feature_set=cfg.features,
                       options={"tool": cfg.tool, "env": cfg.env, "floor_joint": cfg.floor_joint,
                                "floor_task": cfg.floor_task, "floor_attitude": cfg.floor_attitude,
-                               "tool_velocity": cfg.tool_velocity, "floor_velocity": cfg.floor_velocity,
                                "floor_weight": fitter.nu,
                                "volume_prior": cfg.volume_prior, "trans_floor": cfg.trans_floor,
                                "m_step": cfg.solver.m_step, "seed": cfg.seed, "subsample": cfg.subsample})

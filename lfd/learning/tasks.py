@@ -71,9 +71,6 @@ class TaskSpec:
         attitude is the task (a pour).
     restarts : the EM restarts ``train.py`` learns the task with unless told otherwise
         (``--restarts``); None: ``FitConfig``'s default.
-    tool_velocity : whether ``train.py`` fits the tool point's velocity too unless told otherwise
-        (``--tool-velocity``/``--no-tool-velocity``; ``FitConfig.tool_velocity``, whose own default
-        is the paper's False): for a task whose tool turns about its working point (a pour).
     """
 
     name: str
@@ -84,7 +81,6 @@ class TaskSpec:
     subsample: int = 1
     features: str = "paper"
     restarts: int | None = None
-    tool_velocity: bool = False
 
     def __post_init__(self):
         if not isinstance(self.name, str) or not self.name:
@@ -104,15 +100,11 @@ class TaskSpec:
         if not isinstance(self.reference_landmark, str) or not self.reference_landmark:
             raise ValueError(f"TaskSpec.reference_landmark must be a landmark's name, got "
                              f"{self.reference_landmark!r}")
-        if not isinstance(self.tool_velocity, bool):
-            raise ValueError(f"TaskSpec.tool_velocity must be true or false, got {self.tool_velocity!r}")  # noqa: TRY004 (task.json: a user error)
 
     def fit_defaults(self) -> dict:
         """The ``FitConfig`` fields a fit of this task takes from it unless told otherwise
-        (``time_steps``, ``subsample``, ``features``, ``tool_velocity``, and ``restarts`` when the
-        task names them)."""
-        out = {"time_steps": self.time_steps, "subsample": self.subsample, "features": self.features,
-               "tool_velocity": self.tool_velocity}
+        (``time_steps``, ``subsample``, ``features``, and ``restarts`` when the task names them)."""
+        out = {"time_steps": self.time_steps, "subsample": self.subsample, "features": self.features}
         if self.restarts is not None:
             out["restarts"] = self.restarts
         return out
@@ -134,7 +126,7 @@ class TaskSpec:
                    manual_tool_point=tuple(point) if isinstance(point, list) else point,
                    reference_landmark=d.get("reference_landmark", "bowl"),
                    subsample=d.get("subsample", 1), features=d.get("features", "paper"),
-                   restarts=d.get("restarts"), tool_velocity=d.get("tool_velocity", False))
+                   restarts=d.get("restarts"))
 
     def save(self, path: str | Path) -> None:
         Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
@@ -158,12 +150,8 @@ POWDER = TaskSpec(name="powder", dt=0.1, time_steps=24, manual_tool_point=(0.0, 
 # 4 EM restarts, not FitConfig's 12: a restart of the pour (about 4,600 observations at 25 Hz, 48
 # steps) takes 4-5 s, and with 4 the pour reached 98% / 98% / 90% on three demonstration draws
 # (docs/RESULTS.md) in 18-22 s of learning.
-# With the tool point's velocity (tool_velocity): the demonstrator turns the pitcher about its
-# spout; without it five demonstration draws learned tool points 11.6 cm apart (the spout in
-# one, near where the stream was aimed in the others), with it within 2.3 cm of each other
-# (docs/EXPERIMENTS.md, issue 24).
 POUR = TaskSpec(name="pour", dt=0.02, time_steps=48, manual_tool_point=(-0.08, 0.07, 0.135), subsample=2,
-                features="attitude", restarts=4, tool_velocity=True)
+                features="attitude", restarts=4)
 
 TASKS = {t.name: t for t in (POWDER, POUR)}
 
