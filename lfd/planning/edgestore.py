@@ -350,8 +350,7 @@ class EdgeStore:
         self.counters["screened_points"] += len(eids)
         Q, wn, wv = self._probe(eids)
         hit = self.roadmap.in_collision(Q)
-        self.set_blocked(eids[hit])
-        self._wnode[eids[hit]], self._wvert[eids[hit]] = wn[hit], wv[hit]
+        self._block(eids[hit], wn[hit], wv[hit])
         return int(hit.sum())
 
     def _witnessed(self, eids: np.ndarray) -> np.ndarray:
@@ -386,10 +385,13 @@ class EdgeStore:
         is why (a witness: ``invalidate`` resets such an edge only when an object leaves near
         that vertex)."""
         eids = np.asarray(eids, dtype=np.int64)
+        self._block(eids, -1, -1 if at_vertex is None else int(at_vertex))
+
+    def _block(self, eids: np.ndarray, wnode, wvert) -> None:
+        """Mark ``eids`` as colliding with their witnesses (interior rows, vertices; -1 where none)."""
         self.counters["blocked"] += int((self.state[eids] != BLOCKED).sum())
         self.state[eids] = BLOCKED
-        self._wnode[eids] = -1
-        self._wvert[eids] = -1 if at_vertex is None else int(at_vertex)
+        self._wnode[eids], self._wvert[eids] = wnode, wvert
 
     def check(self, eids) -> np.ndarray:
         """Settle the collision state of ``eids`` (unknown ones checked now: the witness first,
@@ -400,11 +402,10 @@ class EdgeStore:
         todo = np.unique(eids[self.state[eids] == UNKNOWN])
         known = todo[self._witnessed(todo)]
         if len(known):  # a configuration that collided before, checked first
-            Q, _, _ = self._probe(known)
+            Q, wn, wv = self._probe(known)
             self.counters["witness_checks"] += len(known)
-            hit = known[self.roadmap.in_collision(Q)]
-            self.state[hit] = BLOCKED
-            self.counters["blocked"] += len(hit)
+            again = self.roadmap.in_collision(Q)
+            self._block(known[again], wn[again], wv[again])  # the witness kept
         for e in todo[self.state[todo] == UNKNOWN].tolist():
             self._wnode[e] = self._wvert[e] = -1
             u, w = self.ends[e]
