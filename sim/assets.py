@@ -129,22 +129,50 @@ def tool_link_urdf(task: str, parent: str = "left_gripper") -> str:
             f'<parent link="{parent}"/><child link="tool"/></joint>\n')
 
 
-def _compound(client, boxes, rgba, cylinders=(), collide=True):
-    """A static body from boxes ``[(centre, half, quat)]`` and cylinders ``[(centre, radius, length)]``."""
-    types, halves, radii, lengths, pos, orn = [], [], [], [], [], []
-    for c, h, q in boxes:
-        types.append(p.GEOM_BOX); halves.append(h); radii.append(0); lengths.append(0)
-        pos.append(c); orn.append(q)
-    for c, r, ln in cylinders:
-        types.append(p.GEOM_CYLINDER); halves.append((0, 0, 0)); radii.append(r); lengths.append(ln)
-        pos.append(c); orn.append((0, 0, 0, 1))
+# PyBullet's createCollisionShapeArray / createVisualShapeArray keep at most this many shapes
+# and drop the rest without a word (the bowl's floor disc, its 17th shape, was never built, so
+# particles rested on the table and fell through where the bowl overhangs the table's edge)
+MAX_SHAPES_PER_ARRAY = 16
+
+
+def _shape_arrays(client, shapes, collide):
+    """``(collision, visual)`` shape indices of ``shapes`` ``[(type, half, radius, length, pos, orn)]``
+    (at most ``MAX_SHAPES_PER_ARRAY``); collision -1 when ``collide`` is False."""
+    if len(shapes) > MAX_SHAPES_PER_ARRAY:
+        raise ValueError(f"at most {MAX_SHAPES_PER_ARRAY} shapes per array, got {len(shapes)}")
+    types, halves, radii, lengths, pos, orn = (list(col) for col in zip(*shapes))
     kw = dict(shapeTypes=types, halfExtents=halves, radii=radii, lengths=lengths)
     col = (p.createCollisionShapeArray(collisionFramePositions=pos, collisionFrameOrientations=orn,
                                        physicsClientId=client, **kw) if collide else -1)
     vis = p.createVisualShapeArray(visualFramePositions=pos, visualFrameOrientations=orn,
                                    physicsClientId=client, **kw)
-    body = p.createMultiBody(0, col, vis, physicsClientId=client)
-    p.changeVisualShape(body, -1, rgbaColor=rgba, physicsClientId=client)
+    return col, vis
+
+
+def _compound(client, boxes, rgba, cylinders=(), collide=True):
+    """A static body from boxes ``[(centre, half, quat)]`` and cylinders ``[(centre, radius, length)]``.
+
+    The first ``MAX_SHAPES_PER_ARRAY`` shapes form the base; any further ones form fixed links
+    of the same body, so that no shape is lost (``sim.collision`` checks the arm against the
+    base: the bowl's walls; its floor, a link, lies on the table the check already keeps clear)."""
+    shapes = [(p.GEOM_BOX, h, 0, 0, c, q) for c, h, q in boxes]
+    shapes += [(p.GEOM_CYLINDER, (0, 0, 0), r, ln, c, (0, 0, 0, 1)) for c, r, ln in cylinders]
+    if not shapes:
+        raise ValueError("a body needs at least one box or cylinder")
+    n = MAX_SHAPES_PER_ARRAY
+    parts = [_shape_arrays(client, shapes[k:k + n], collide) for k in range(0, len(shapes), n)]
+    (col, vis), links = parts[0], parts[1:]
+    k = len(links)
+    body = p.createMultiBody(0, col, vis, linkMasses=[0] * k,
+                             linkCollisionShapeIndices=[c for c, _ in links],
+                             linkVisualShapeIndices=[v for _, v in links],
+                             linkPositions=[(0, 0, 0)] * k, linkOrientations=[(0, 0, 0, 1)] * k,
+                             linkInertialFramePositions=[(0, 0, 0)] * k,
+                             linkInertialFrameOrientations=[(0, 0, 0, 1)] * k,
+                             linkParentIndices=[0] * k, linkJointTypes=[p.JOINT_FIXED] * k,
+                             linkJointAxis=[(0, 0, 1)] * k, physicsClientId=client)
+    for link in range(-1, k):
+        p.changeVisualShape(body, link, rgbaColor=rgba, physicsClientId=client)
     return body
 
 

@@ -217,7 +217,8 @@ def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
         # getClosestPoints ignores collision filters (PyBullet 3.2.x; bullet3 issue 4376 calls it
         # a bug): should a release change that, test_every_configuration_closer_than_the_margin_
         # collides fails, and this filter must go.
-        p.setCollisionFilterGroupMask(body, -1, 0, 0, physicsClientId=shadow)
+        for link in range(-1, p.getNumJoints(body, physicsClientId=shadow)):
+            p.setCollisionFilterGroupMask(body, link, 0, 0, physicsClientId=shadow)
         return body
 
     bodies = {"table": scene_body(assets.build_table(shadow))}

@@ -95,3 +95,69 @@ def test_dumping_over_the_bowl_fills_it(world):
         world.move_object("bowl", L.BOWL_DEFAULT_XY)
         world.move_object("source", L.SOURCE_DEFAULT_XY)
         world.set_q(L.HOME_Q)
+
+
+def _drop_into(body_xy_z, client) -> list[float]:
+    """Heights (m) of particles dropped from 5 cm over points inside the bowl, after 1 s."""
+    import pybullet as p
+
+    r = L.PARTICLES["pour"][1]
+    shape = p.createCollisionShape(p.GEOM_SPHERE, radius=r, physicsClientId=client)
+    x0, y0, z0 = body_xy_z
+    balls = [p.createMultiBody(L.PARTICLE_MASS, shape, -1, basePosition=(x0 + dx, y0 + dy, z0 + 0.05),
+                               physicsClientId=client)
+             for dx in (-0.06, 0.0, 0.06) for dy in (-0.06, 0.0, 0.06)]
+    for _ in range(steps(1.0)):
+        p.stepSimulation(physicsClientId=client)
+    return [p.getBasePositionAndOrientation(b, physicsClientId=client)[0][2] - z0 for b in balls]
+
+
+def test_bowl_floor_holds_particles_without_the_table():
+    """The bowl's floor is its own: particles dropped into a bowl with nothing under it rest on
+    its floor (PyBullet keeps at most 16 shapes per shape array and dropped the floor, the bowl's
+    17th shape, so particles lay on the table and fell through where the bowl overhung its edge)."""
+    import pybullet as p
+
+    from sim import assets
+
+    client = p.connect(p.DIRECT)
+    try:
+        p.setGravity(0, 0, -9.81, physicsClientId=client)
+        p.setTimeStep(L.SIM_DT, physicsClientId=client)
+        bowl = assets.build_bowl(client)
+        p.resetBasePositionAndOrientation(bowl, (0.0, 0.0, 1.0), (0, 0, 0, 1), physicsClientId=client)
+        heights = _drop_into((0.0, 0.0, 1.0), client)
+        floor_top = L.BOWL_WALL
+        assert min(heights) > floor_top, heights
+        assert max(heights) < floor_top + 2 * L.PARTICLES["pour"][1] + 1e-3, heights
+        shapes = L.BOWL_SEGMENTS + 1  # the wall's boxes and the floor disc
+        assert shapes > assets.MAX_SHAPES_PER_ARRAY  # the case the split exists for
+        assert p.getNumJoints(bowl, physicsClientId=client) == 1  # the floor, a fixed link
+    finally:
+        p.disconnect(client)
+
+
+def test_compound_of_more_shapes_than_one_array_keeps_all():
+    """Every shape of a body is built, however many: a particle rests on each of 20 boxes."""
+    import pybullet as p
+
+    from sim import assets
+
+    client = p.connect(p.DIRECT)
+    try:
+        p.setGravity(0, 0, -9.81, physicsClientId=client)
+        p.setTimeStep(L.SIM_DT, physicsClientId=client)
+        ident = (0, 0, 0, 1)
+        pads = [((0.1 * k, 0.0, 0.0), (0.02, 0.02, 0.005), ident) for k in range(20)]
+        assets._compound(client, pads, (1, 1, 1, 1))
+        shape = p.createCollisionShape(p.GEOM_SPHERE, radius=0.007, physicsClientId=client)
+        balls = [p.createMultiBody(0.002, shape, -1, basePosition=(0.1 * k, 0.0, 0.05), physicsClientId=client)
+                 for k in range(20)]
+        for _ in range(steps(1.0)):
+            p.stepSimulation(physicsClientId=client)
+        z = np.array([p.getBasePositionAndOrientation(b, physicsClientId=client)[0][2] for b in balls])
+        assert np.all(np.abs(z - 0.012) < 2e-3), z
+        with pytest.raises(ValueError, match="at least one"):
+            assets._compound(client, [], (1, 1, 1, 1))
+    finally:
+        p.disconnect(client)
