@@ -186,6 +186,32 @@ def save_path(out_dir: Path, row: dict, path) -> str:
     return rel.as_posix()
 
 
+def _is_int(x) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+# what the results read of a finished run (sim.report), by the check its value must pass
+_FINISHED_FIELDS = {"success": lambda x: isinstance(x, bool), "reason": lambda x: isinstance(x, str),
+                    "fraction_in_bowl": _is_number, "initial_ms": _is_number, "contacts": lambda x: isinstance(x, list),
+                    "replan_ms": lambda x: isinstance(x, list) and all(map(_is_number, x))}
+
+
+def _row_problem(r) -> str | None:
+    """Why a logged run cannot be counted (a hand-edited or foreign ``runs.jsonl``), or None."""
+    if not isinstance(r, dict):
+        return f"a logged run is a JSON object, got {type(r).__name__}"
+    if not (isinstance(r.get("variant"), str) and _is_int(r.get("scenario")) and _is_int(r.get("demo_seed", 0))):
+        return "a logged run needs a variant name and whole-number scenario and demo_seed"
+    if "error" in r:
+        return None
+    bad = [k for k, ok in _FINISHED_FIELDS.items() if k not in r or not ok(r[k])]
+    return f"a finished run with missing or malformed {', '.join(bad)}" if bad else None
+
+
 def _read_log(log: Path, latency: str, run_settings: dict) -> tuple[dict, dict, int, bool]:
     """The runs logged in ``log`` that count for an evaluation in latency mode ``latency`` with
     ``run_settings`` (task, roadmap size, models folder; rows logged before they were recorded count):
@@ -196,12 +222,15 @@ def _read_log(log: Path, latency: str, run_settings: dict) -> tuple[dict, dict, 
     crashed: dict = {}
     lines = 0
     text = log.read_text() if log.is_file() else ""
-    for line in text.splitlines():
+    for n, line in enumerate(text.splitlines(), 1):
         try:
             r = json.loads(line)
-            key = (r["variant"], int(r.get("demo_seed", 0)), r["scenario"])
-        except (ValueError, KeyError, TypeError):
+        except ValueError:
             continue  # a line cut by an interruption
+        why = _row_problem(r)
+        if why:
+            raise UsageError(f"{log}, line {n}: {why}; correct or delete that line, or choose another --out")
+        key = (r["variant"], r.get("demo_seed", 0), r["scenario"])
         lines += 1
         # runs of another setting are redone: logged without a latency mode, a run was made in a
         # frozen world ("none"); with a dwell other than the paper's interval (an option since
@@ -271,7 +300,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     for k in settings.demo_seeds:
         for v in variants:
             summary = ensure_model(settings.task, models, demos, v, demo_seed=k) / "summary.json"
-            summaries[v.name, k] = json.loads(summary.read_text()) if summary.is_file() else {}
+            summaries[v.name, k] = _read_summary(summary)
         tilt[k] = demo_tilt(demos_for(settings.task, demos, k) or default_demos(settings.task))["mean"]
     learn_s = {key: sm.get("learning_time_s", math.nan) for key, sm in summaries.items()}
     sets = {S: draw_scenarios(settings.task, settings.n_scenarios, S) for S in settings.seeds}
@@ -321,6 +350,19 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     finally:
         executor.close(cancel=True)  # (run_jobs closed it already unless something failed before)
     return _write_results(settings, out_dir, models, variants, sets, done, crashed, learn_s)
+
+
+def _read_summary(path: Path) -> dict:
+    """A model's ``summary.json`` (``{}`` when there is none); ``UsageError`` when it is damaged."""
+    if not path.is_file():
+        return {}
+    try:
+        rec = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError, RecursionError) as e:
+        raise UsageError(f"{path}: not valid JSON ({error_line(e)}); train the model again or delete the file") from None
+    if not isinstance(rec, dict):
+        raise UsageError(f"{path}: a training summary is a JSON object, got {type(rec).__name__}")
+    return rec
 
 
 def _time_steps(summaries: dict) -> int:

@@ -43,14 +43,10 @@ def model_mismatch(model: TaskModel, task: str) -> str | None:
     return None
 
 
-def _task_name(model: TaskModel) -> str:
-    return model.task.name if model.task is not None else "powder"
-
-
 def load_checked_model(model_dir: str | Path, task: str | None = None,
                        what: str = "--model") -> tuple[TaskModel, str]:
     """Load the model in ``model_dir`` and check it fits the scenarios of ``task`` (default: the
-    model's own task, powder when it names none); ``(model, task)``.
+    model's own task; a model that names none is refused); ``(model, task)``.
 
     Raises ``UsageError`` (or ``lfd.learning.model.ModelFormatError``) with a message that starts
     ``"{what} {model_dir}: "``.
@@ -59,7 +55,11 @@ def load_checked_model(model_dir: str | Path, task: str | None = None,
     if not (model_dir / "config.json").is_file():
         raise UsageError(f"{what} {model_dir}: no config.json (train one with train.py)")
     model = TaskModel.load(model_dir)
-    own = _task_name(model)
+    if model.task is None:  # it was planned as powder at 0.1 s per step, whatever it had learned
+        raise UsageError(f"{what} {model_dir}: the model names no task (its demonstrations had no task.json), "
+                         f"so neither its scenes nor its time step are known; add a task.json to the "
+                         f"demonstrations (lfd.learning.tasks.TaskSpec: name, dt, ...) and train again")
+    own = model.task.name
     if task is not None and own != task:
         raise UsageError(f"{what} {model_dir}: a model of task {own!r}, not {task!r}")
     task = own

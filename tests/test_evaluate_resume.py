@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lfd.cli import UsageError
 import sim.evaluate as ev
 import sweep_fakes
 import sim.report as report
@@ -329,3 +330,22 @@ def test_runs_of_another_roadmap_size_or_models_folder_are_run_again(tmp_path, m
             shutil.copytree(models, other)
         ev.evaluate(replace(_settings(), **{k: v for k, v in change.items() if k != "models"}), out, other, resume=True)
         assert again.calls == _all_pairs(), change
+
+
+@pytest.mark.parametrize("edit,fragment", [
+    (lambda r: r.update(scenario=[r["scenario"]]), "whole-number scenario"),  # was: unhashable type
+    (lambda r: r.pop("initial_ms"), "missing or malformed initial_ms"),  # was: KeyError in the table
+    (lambda r: r.update(fraction_in_bowl=None), "missing or malformed fraction_in_bowl"),  # was: TypeError
+])
+def test_hand_edited_log_row_is_named_not_crashed_on(tmp_path, models, monkeypatch, edit, fragment):
+    out = tmp_path / "eval"
+    out.mkdir()
+    pairs = _all_pairs()
+    rows = [_row(*pairs[0]), _row(*pairs[1])]
+    edit(rows[1])
+    (out / "runs.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    fake = FakeRunOne()
+    monkeypatch.setattr(ev, "run_one", fake)
+    with pytest.raises(UsageError, match=r"runs.jsonl, line 2: ") as info:
+        ev.evaluate(_settings(), out, models, resume=True)
+    assert fragment in str(info.value) and fake.calls == []

@@ -155,6 +155,16 @@ def test_command_line_refusals(tmp_path, capsys):
     r = _import(capsys, DATA, tmp_path / "o3", "--robot-json", str(tmp_path / "robot.json"))
     assert r.returncode == 2 and "--robot-json" in r.stderr
     assert "no recordings" in _import(capsys, tmp_path / "out", tmp_path / "o4").stderr
+    # bad numbers: one line each, not a traceback (NaN in the pose was a scipy error; 1e7 Hz filled the memory)
+    for extra, fragment in ((("--frame-pose", "0", "0", "nan", "0", "0", "0", "1"), "--frame-pose needs 7 finite numbers"),
+                            (("--frame-pose", "0", "0", "0", "0", "0", "0", "nan"), "--frame-pose needs 7 finite numbers"),
+                            (("--rate", "1e7"), "--rate must be within [1, 1000] Hz"),
+                            (("--rate", "0.5"), "--rate must be within [1, 1000] Hz")):
+        r = _import(capsys, DATA, tmp_path / "o5", *extra)
+        assert r.returncode == 2 and fragment in r.stderr and r.stderr.count("\n") == 1, (extra, r.stderr)
+    (tmp_path / "cols.json").write_text(json.dumps({"degrees": "false"}))  # was read as degrees=True
+    r = _import(capsys, DATA, tmp_path / "o6", "--columns", str(tmp_path / "cols.json"))
+    assert r.returncode == 2 and "'degrees' must be true or false, got 'false'" in r.stderr, r.stderr
 
 
 def test_angles_recorded_modulo_a_turn_are_unwrapped_into_the_limits(tmp_path):

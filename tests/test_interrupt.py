@@ -166,3 +166,19 @@ def test_checkpoint_round_trip_with_every_restart_dropped(tmp_path):
     assert q.best_state is None and q.best_restart is None and np.isnan(q.restart_losses[0])
     assert q.notes == p.notes and q.mismatch({"seed": 0}, "abc") is None
     assert "different options: seed=0 there, 1 now" in q.mismatch({"seed": 1}, "abc")
+
+
+@pytest.mark.parametrize("best,value,fragment", [
+    (5, 1.0, "best restart 5 is not one of its 1 restarts"),  # was an IndexError in the resumed fit
+    (0, float("nan"), "holds NaN or infinite values"),  # was a Cholesky error blamed on the refit
+])
+def test_checkpoint_that_cannot_be_resumed_is_named(tmp_path, best, value, fragment):
+    from lfd.learning.checkpoint import STATE_TENSORS, CheckpointError, FitProgress, save_checkpoint
+    state = {k: torch.full((2,), value, dtype=torch.float64) for k in STATE_TENSORS}
+    state["alignment"] = torch.zeros(2, dtype=torch.int64)
+    p = FitProgress(config={"seed": 0}, fingerprint="abc", restart_losses=(-1.0,), loss_history=((-1.0,),),
+                    em_iterations=(1,), notes=(), best_restart=best, best_state=state)
+    save_checkpoint(tmp_path, p)
+    with pytest.raises(CheckpointError, match="checkpoint") as info:
+        load_checkpoint(tmp_path)
+    assert fragment in str(info.value)

@@ -154,6 +154,15 @@ def _incomplete_model(d):
     return d / "m"
 
 
+def _evaluate_summary(text: str):
+    """plan.py --evaluate on a --models folder whose trained model's summary.json holds ``text``."""
+    def setup(d: Path, good: Path):
+        argv = _evaluate_models("powder")(d, good)
+        (d / "models" / "learn-learn" / "summary.json").write_text(text)
+        return argv
+    return setup
+
+
 # (id, setup(tmp_dir, good_demos_dir) -> argv, distinctive fragment of the one stderr line)
 CASES = [
     # broken demonstration files, through train.py --demos
@@ -163,7 +172,8 @@ CASES = [
     ("too-short", _demos(q=np.zeros((3, 7))), "only 3 samples, fewer than the 4 time steps"),
     ("out-of-limits", _demos(q=np.full((30, 7), 2.9)), "outside its limits"),
     ("not-rigid", _demos(landmark_poses=_not_rigid()), "'marker_1' pose is not a rigid transform"),
-    ("dt-zero", _demos(dt=np.float64(0.0)), "'dt' (sampling interval) must be positive"),
+    ("dt-zero", _demos(dt=np.float64(0.0)), "'dt' (sampling interval, seconds) must be positive and at most 1, got 0.0"),
+    ("dt-milliseconds", _demos(dt=np.float64(20.0)), "got 20.0 (milliseconds given as seconds?)"),
     ("landmark-names", _demos(landmark_names=np.array(["bowl", "marker_1", "vase"])),
      "landmark_names ['bowl', 'marker_1', 'vase'] (Z=3) differ"),
     ("pickled-object-array", _demos(landmark_names=np.array(["bowl", 1, None], dtype=object)),
@@ -193,6 +203,8 @@ CASES = [
     ("out-is-file", _train(out=_out_is_file), "exists and is not a folder"),
     ("out-under-a-file", _train(out=_out_under_file), "cannot create this folder (Not a directory)"),
     ("device-cuda", _train("--device", "cuda"), "--device cuda: torch.cuda.is_available() is False"),
+    ("device-meta", _train("--device", "meta"), "--device meta: the meta device holds no data"),
+    ("device-hpu", _train("--device", "hpu"), "--device hpu: this machine's torch cannot use it"),
     ("resume-no-checkpoint", _train("--resume"), "--resume: ", ),
     ("resume-damaged-checkpoint", _damaged_checkpoint, "damaged (sha256 differs"),
     # plan.py
@@ -205,11 +217,15 @@ CASES = [
     ("plan-model-other-landmarks", _plan(model=_model),
      "needs landmark(s) ['cup'], which the powder scenarios do not sense; they provide ['bowl', 'marker_1', "),
     ("plan-model-other-robot", _plan(model=_other_robot), "learned for robot 'other_arm' (end link 'tool0'"),
+    ("plan-model-no-task", _plan(model=lambda d: _model(d, names=("bowl",), task=None)),
+     "the model names no task (its demonstrations had no task.json)"),  # was planned as powder at 0.1 s
     ("plan-model-other-task", _plan(model=lambda d: _model(d, names=("bowl",), task=replace(POWDER, name="stir"))),
      "a model of task 'stir'; the simulator has scenarios of powder, pour only"),
     ("plan-evaluate-other-landmarks", _evaluate_models("powder", names=("bowl", "cup")),
      "learn-learn: the model needs landmark(s) ['cup']"),
     ("plan-evaluate-other-task", _evaluate_models("pour"), "learn-learn: a model of task 'powder', not 'pour'"),
+    ("plan-evaluate-summary-truncated", _evaluate_summary('{"time_st'), "summary.json: not valid JSON"),
+    ("plan-evaluate-summary-list", _evaluate_summary("[]"), "a training summary is a JSON object, got list"),
 ]
 NO_OUTPUT = {  # refused before anything was simulated or written
     "plan-model-other-landmarks": "m/plans", "plan-model-other-robot": "m/plans", "plan-model-other-task": "m/plans",

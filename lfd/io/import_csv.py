@@ -21,10 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from lfd.cli import ArgumentParser, UsageError, check_task_name, run_main
+from lfd.learning.tasks import MAX_DT
 
 __all__ = ["PROG", "build_parser", "cli", "main"]
 
 PROG = "lfd-import"
+MAX_RATE = 1000.0  # Hz: resampled faster, a recording is only interpolated (and 1e7 Hz filled the memory)
 
 
 def build_parser(prog: str = PROG) -> ArgumentParser:
@@ -74,6 +76,8 @@ def _frame(pose) -> np.ndarray | None:
         return None
     from scipy.spatial.transform import Rotation
     q = np.asarray(pose[3:])
+    if not np.all(np.isfinite(pose)):
+        raise UsageError(f"--frame-pose needs 7 finite numbers, got {list(pose)}")
     if abs(np.linalg.norm(q) - 1) > 1e-3:
         raise UsageError(f"--frame-pose: the quaternion {q.tolist()} is not unit")
     T = np.eye(4)
@@ -91,8 +95,9 @@ def main(argv=None, prog: str = PROG) -> int:
     check_task_name(args.task)
     if args.out.exists():
         raise UsageError(f"--out {args.out}: exists already; choose a new folder")
-    if not args.rate > 0 or args.time_steps < 2:
-        raise UsageError(f"--rate must be positive and --time-steps at least 2, got {args.rate}, {args.time_steps}")
+    if not (1.0 / MAX_DT <= args.rate <= MAX_RATE) or args.time_steps < 2:
+        raise UsageError(f"--rate must be within [{1.0 / MAX_DT:g}, {MAX_RATE:g}] Hz and --time-steps at least 2, "
+                         f"got {args.rate}, {args.time_steps}")
     robot = _robot(args)
     columns = JointColumns.load(args.columns) if args.columns else None
     ds, report = import_recordings(args.recordings, robot, args.rate, columns=columns, T_base_frame=_frame(args.frame_pose),

@@ -70,6 +70,8 @@ class JointColumns:
             d = json.loads(Path(path).read_text())
             if not isinstance(d, dict) or not set(d) <= {"time", "joints", "degrees"}:
                 raise ValueError("expected an object with the keys time, joints, degrees")
+            if not isinstance(d.get("degrees", False), bool):  # "false" (a string) read as True
+                raise ValueError(f"'degrees' must be true or false, got {d['degrees']!r}")  # noqa: TRY004 (a user's file)
             return cls(time=str(d.get("time", "time")), joints={str(k): str(v) for k, v in d.get("joints", {}).items()},
                        degrees=bool(d.get("degrees", False)))
         except (OSError, ValueError, TypeError, AttributeError) as e:

@@ -264,6 +264,14 @@ def load_checkpoint(folder: str | Path) -> FitProgress:
         raise CheckpointError(f"{rec_path}: incomplete record ({type(e).__name__}: {e})") from e
     if (progress.best_restart is None) != (progress.best_state is None):
         raise CheckpointError(f"{rec_path}: best restart and tensor file disagree")
+    n = len(progress.restart_losses)
+    if len(progress.loss_history) < n or len(progress.em_iterations) < n:
+        raise CheckpointError(f"{rec_path}: incomplete record ({n} restart losses, "
+                              f"{len(progress.loss_history)} loss histories, {len(progress.em_iterations)} iteration counts)")
+    if progress.best_restart is not None and not 0 <= progress.best_restart < n:
+        raise CheckpointError(f"{rec_path}: best restart {progress.best_restart} is not one of its {n} restarts")
+    if progress.best_state is not None and not all(bool(torch.isfinite(v).all()) for v in progress.best_state.values()):
+        raise CheckpointError(f"{pt_path}: holds NaN or infinite values")
     return progress
 
 

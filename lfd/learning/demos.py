@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from lfd.errors import UserInputError
-from lfd.learning.tasks import TaskSpec, check_point, check_stride
+from lfd.learning.tasks import MAX_DT, TaskSpec, check_point, check_stride
 from lfd.robot.robots import RobotSpec
 from lfd.robot.se3 import rigid_errors
 
@@ -248,8 +248,10 @@ def _check_one(path: Path, raw: dict) -> tuple[Demonstration, tuple, tuple, Robo
         raise _fail(where, f"key 'q' has {q.shape[1]} columns but 'joint_names' names {len(joint_names)} "
                            f"joints")
     dt = _as_float(where, "dt", raw["dt"], 0)
-    if not dt > 0:
-        raise _fail(where, f"key 'dt' (sampling interval) must be positive, got {float(dt)}")
+    if not 0 < dt <= MAX_DT:
+        hint = " (milliseconds given as seconds?)" if dt > MAX_DT else ""
+        raise _fail(where, f"key 'dt' (sampling interval, seconds) must be positive and at most {MAX_DT:g}, "
+                           f"got {float(dt)}{hint}")
     poses = _landmark_poses(where, raw["landmark_poses"], landmark_names, len(q))
     demo = Demonstration(q=q, dt=float(dt), landmarks=poses, name=path.stem)
     return demo, joint_names, landmark_names, robot

@@ -12,7 +12,7 @@ import json
 import math
 import numbers
 import re
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 # the feature spaces of lfd.learning.model, which a task may name, and how many world vectors each
@@ -24,6 +24,9 @@ __all__ = ["FEATURE_SETS", "POUR", "POWDER", "TASKS", "TASK_NAME", "TASK_VECTORS
 
 
 TASK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")  # a task's name is also a folder name (./runs/<task>)
+# the longest sampling interval (s) a recording may have: a robot recorded at under 1 Hz is not a
+# kinesthetic demonstration, and a dt in milliseconds read as seconds makes every simulated step last minutes
+MAX_DT = 1.0
 
 
 def check_whole(value, what: str, minimum: int = 1) -> int:
@@ -88,6 +91,8 @@ class TaskSpec:
         if isinstance(self.dt, bool) or not isinstance(self.dt, numbers.Real) \
                 or not (math.isfinite(self.dt) and self.dt > 0):
             raise ValueError(f"TaskSpec.dt must be a finite positive number of seconds, got {self.dt!r}")
+        if self.dt > MAX_DT:
+            raise ValueError(f"TaskSpec.dt is the sampling interval in seconds, at most {MAX_DT:g}; got {self.dt!r}")
         object.__setattr__(self, "dt", float(self.dt))
         object.__setattr__(self, "time_steps", check_whole(self.time_steps, "TaskSpec.time_steps", 2))
         object.__setattr__(self, "subsample", check_stride(self.subsample, "TaskSpec.subsample"))
@@ -121,6 +126,10 @@ class TaskSpec:
             raise ValueError(f"a task is a JSON object, got {type(d).__name__}")  # noqa: TRY004 (bad input: a user error)
         if "name" not in d or "dt" not in d:
             raise ValueError(f"a task needs 'name' and 'dt', got keys {sorted(d)}")
+        unknown = sorted(set(d) - {f.name for f in fields(cls)})
+        if unknown:  # a misspelt entry would otherwise leave its setting at the default unseen
+            raise ValueError(f"unknown task entries {unknown}; a task has "
+                             f"{', '.join(f.name for f in fields(cls))}")
         point = d.get("manual_tool_point", (0.0, 0.0, 0.0))
         return cls(name=d["name"], dt=d["dt"], time_steps=d.get("time_steps", 24),
                    manual_tool_point=tuple(point) if isinstance(point, list) else point,
