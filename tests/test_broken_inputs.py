@@ -222,9 +222,11 @@ BROKEN_MODELS = [
      "mu holds NaN"),
     ("sigma-zero", lambda d: _break_tensor(d, "sigma_inv", torch.zeros(4, 10, 10, dtype=torch.float64)),
      "positive diagonal"),
-    ("not-tensors", lambda d: _break_tensor(d, "tool", [0.0, 0.0, 0.0]), "must be real floating-point tensors"),
+    ("not-tensors", lambda d: _break_tensor(d, "tool", [0.0, 0.0, 0.0]), "must be real floating-point (dense) tensors"),
     ("complex", lambda d: _break_tensor(d, "tool", torch.zeros(3, dtype=torch.complex128)),
-     "must be real floating-point tensors"),
+     "must be real floating-point (dense) tensors"),
+    ("sparse", lambda d: _break_tensor(d, "tool", torch.zeros(3, dtype=torch.float64).to_sparse()),
+     "must be real floating-point (dense) tensors"),  # was a NotImplementedError traceback in plan.py
     ("log-trans-positive", lambda d: _break_tensor(d, "log_trans", torch.ones(4, 3, dtype=torch.float64)),
      "log-probabilities"),
     ("env-not-one", lambda d: _break_tensor(d, "env", torch.full((1,), 0.5, dtype=torch.float64)), "sum to 1"),

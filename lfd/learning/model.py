@@ -369,10 +369,10 @@ class TaskModel:
         if not isinstance(state, dict) or set(state) != set(cls._TENSORS):
             raise ModelFormatError(f"{pt_path}: expected tensors {list(cls._TENSORS)}, got "
                                    f"{sorted(state) if isinstance(state, dict) else type(state).__name__}")
-        not_real = sorted(k for k, v in state.items()
-                          if not isinstance(v, torch.Tensor) or not v.is_floating_point())
+        not_real = sorted(k for k, v in state.items() if not isinstance(v, torch.Tensor)
+                          or not v.is_floating_point() or v.layout != torch.strided)
         if not_real:
-            raise ModelFormatError(f"{pt_path}: {not_real} must be real floating-point tensors")
+            raise ModelFormatError(f"{pt_path}: {not_real} must be real floating-point (dense) tensors")
         try:
             t = {k: v.to(dtype=dtype, device=device) for k, v in state.items()}
             return cls(t["tool"], t["env"], t["mu"], t["sigma_inv"], t["log_trans"],
