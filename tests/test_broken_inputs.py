@@ -63,7 +63,7 @@ def _one_line_exit_2(r, fragment: str) -> None:
     ({"name": {"a": 1}}, "name must be a non-empty string"),
     ({"reference_landmark": ["bowl"]}, "reference_landmark must be a landmark's name"),
     ({"features": "orientation"}, "features must be one of paper, attitude"),
-    ({"dt": 100.0}, "sampling interval in seconds, at most 1; got 100.0"),  # a plan then stepped for hours
+    ({"dt": 100.0}, "time step in seconds, at most 10; got 100.0"),  # a plan then stepped for hours
     ({"timesteps": 12}, "unknown task entries ['timesteps']"),  # was ignored: 24 steps learned
 ])
 def test_task_json_entries_are_checked(good_dir, kin, entry, fragment):

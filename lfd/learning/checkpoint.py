@@ -270,7 +270,9 @@ def load_checkpoint(folder: str | Path) -> FitProgress:
                               f"{len(progress.loss_history)} loss histories, {len(progress.em_iterations)} iteration counts)")
     if progress.best_restart is not None and not 0 <= progress.best_restart < n:
         raise CheckpointError(f"{rec_path}: best restart {progress.best_restart} is not one of its {n} restarts")
-    if progress.best_state is not None and not all(bool(torch.isfinite(v).all()) for v in progress.best_state.values()):
+    if progress.best_state is not None and not all(  # log_trans holds -inf for an impossible transition
+            bool((torch.isfinite(v) | ((v == float("-inf")) & (k == "log_trans"))).all())
+            for k, v in progress.best_state.items()):
         raise CheckpointError(f"{pt_path}: holds NaN or infinite values")
     return progress
 

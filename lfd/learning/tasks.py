@@ -25,8 +25,10 @@ __all__ = ["FEATURE_SETS", "POUR", "POWDER", "TASKS", "TASK_NAME", "TASK_VECTORS
 
 TASK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")  # a task's name is also a folder name (./runs/<task>)
 # the longest sampling interval (s) a recording may have: a robot recorded at under 1 Hz is not a
-# kinesthetic demonstration, and a dt in milliseconds read as seconds makes every simulated step last minutes
+# kinesthetic demonstration (a dt in milliseconds read as seconds made every simulated step last minutes)
 MAX_DT = 1.0
+# the longest time step (s) a task may have: a recording's interval times the stride it is learned at
+MAX_STEP = 10.0
 
 
 def check_whole(value, what: str, minimum: int = 1) -> int:
@@ -91,8 +93,8 @@ class TaskSpec:
         if isinstance(self.dt, bool) or not isinstance(self.dt, numbers.Real) \
                 or not (math.isfinite(self.dt) and self.dt > 0):
             raise ValueError(f"TaskSpec.dt must be a finite positive number of seconds, got {self.dt!r}")
-        if self.dt > MAX_DT:
-            raise ValueError(f"TaskSpec.dt is the sampling interval in seconds, at most {MAX_DT:g}; got {self.dt!r}")
+        if self.dt > MAX_STEP:
+            raise ValueError(f"TaskSpec.dt is the time step in seconds, at most {MAX_STEP:g}; got {self.dt!r}")
         object.__setattr__(self, "dt", float(self.dt))
         object.__setattr__(self, "time_steps", check_whole(self.time_steps, "TaskSpec.time_steps", 2))
         object.__setattr__(self, "subsample", check_stride(self.subsample, "TaskSpec.subsample"))
