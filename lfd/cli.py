@@ -170,7 +170,7 @@ def check_device_available(text: str) -> None:
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise UsageError(f"--device {text}: torch.cuda.is_available() is False on this machine")
     if dev.type == "meta":  # tensors there have shapes but no values: nothing can be computed
-        raise UsageError(f"--device {text}: the meta device holds no data; use cpu or cuda")
+        raise UsageError(f"--device {text}: the meta device holds no data; use cpu, cuda or mps")
     try:
         torch.zeros(1, device=dev) + 1
     except (RuntimeError, AssertionError, ValueError, ImportError) as e:

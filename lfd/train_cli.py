@@ -256,6 +256,7 @@ def _fit_config(args, ds, demos_dir: Path):
     """The ``FitConfig`` of the command's options, defaults from the demonstrations' task.json;
     ``UsageError`` for a bad combination."""
     from lfd.learning.learn import FitConfig
+    from lfd.learning.tasks import MAX_STEP
 
     kw = {"tool": args.tool, "env": args.env, "seed": args.seed, "device": args.device}
     for key, val in (("restarts", args.restarts), ("time_steps", args.time_steps), ("subsample", args.subsample),
@@ -282,6 +283,10 @@ def _fit_config(args, ds, demos_dir: Path):
     if args.floor_attitude is not None and features != "attitude":
         raise UsageError(f"--floor-attitude applies to the attitude features; this model is learned in the "
                          f"{features!r} features (--features attitude, or the task.json's 'features')")
+    step = ds.demos[0].dt * kw.get("subsample", 1) if ds.demos else 0.0
+    if step > MAX_STEP:  # DemoSet.subsample's TaskSpec would refuse it mid-fit, as a traceback
+        raise UsageError(f"--subsample {kw['subsample']}: a time step of {step:g} s, more than a task's "
+                         f"{MAX_STEP:g} s; keep more of the samples")
     if kw.get("subsample", 1) > 1 and ds.task is None:
         raise UsageError(f"--subsample {kw['subsample']}: {demos_dir} has no task.json, where the model's "
                          f"sampling interval is kept; add one (lfd.learning.tasks.TaskSpec) or leave --subsample out")

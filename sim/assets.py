@@ -153,8 +153,9 @@ def _compound(client, boxes, rgba, cylinders=(), collide=True):
     """A static body from boxes ``[(centre, half, quat)]`` and cylinders ``[(centre, radius, length)]``.
 
     The first ``MAX_SHAPES_PER_ARRAY`` shapes form the base; any further ones form fixed links
-    of the same body, so that no shape is lost (``sim.collision`` checks the arm against the
-    base: the bowl's walls; its floor, a link, lies on the table the check already keeps clear)."""
+    of the same body, so that no shape is lost. ``sim.collision`` checks the arm against the
+    base only: the bowl's walls, not its floor (a link, 6 mm over the table, which the check keeps
+    the arm a margin away from: about 9 mm from the floor's top, not the full margin)."""
     shapes = [(p.GEOM_BOX, h, 0, 0, c, q) for c, h, q in boxes]
     shapes += [(p.GEOM_CYLINDER, (0, 0, 0), r, ln, c, (0, 0, 0, 1)) for c, r, ln in cylinders]
     if not shapes:

@@ -200,10 +200,8 @@ _FINISHED_FIELDS = {"success": lambda x: isinstance(x, bool), "reason": lambda x
                     "replan_ms": lambda x: isinstance(x, list) and all(map(_is_number, x))}
 
 
-def _row_problem(r) -> str | None:
+def _row_problem(r: dict) -> str | None:
     """Why a logged run cannot be counted (a hand-edited or foreign ``runs.jsonl``), or None."""
-    if not isinstance(r, dict):
-        return f"a logged run is a JSON object, got {type(r).__name__}"
     if not (isinstance(r.get("variant"), str) and _is_int(r.get("scenario")) and _is_int(r.get("demo_seed", 0))):
         return "a logged run needs a variant name and whole-number scenario and demo_seed"
     if "error" in r:
@@ -227,10 +225,8 @@ def _read_log(log: Path, latency: str, run_settings: dict) -> tuple[dict, dict, 
             r = json.loads(line)
         except ValueError:
             continue  # a line cut by an interruption
-        why = _row_problem(r)
-        if why:
-            raise UsageError(f"{log}, line {n}: {why}; correct or delete that line, or choose another --out")
-        key = (r["variant"], r.get("demo_seed", 0), r["scenario"])
+        if not isinstance(r, dict):
+            raise UsageError(f"{log}, line {n}: a logged run is a JSON object, got {type(r).__name__}")
         lines += 1
         # runs of another setting are redone: logged without a latency mode, a run was made in a
         # frozen world ("none"); with a dwell other than the paper's interval (an option since
@@ -238,6 +234,10 @@ def _read_log(log: Path, latency: str, run_settings: dict) -> tuple[dict, dict, 
         if r.get("latency", "none") != latency or r.get("dwell", "interval") != "interval" \
                 or r.get("pace") != EXEC_PACE or r.get("settings", run_settings) != run_settings:
             continue
+        why = _row_problem(r)
+        if why:
+            raise UsageError(f"{log}, line {n}: {why}; correct or delete that line, or choose another --out")
+        key = (r["variant"], r.get("demo_seed", 0), r["scenario"])
         if "error" in r:
             if key not in done:
                 crashed[key] = r

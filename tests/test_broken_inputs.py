@@ -23,7 +23,7 @@ from lfd.learning.demos import DemoFormatError, load_demos, save_demos
 from lfd.learning.learn import FitConfig
 from lfd.learning.model import ModelFormatError, TaskModel
 from lfd.robot.robots import BAXTER_LEFT
-from lfd.learning.tasks import POWDER, TaskSpec
+from lfd.learning.tasks import POUR, POWDER, TaskSpec
 from helpers import entry_point, rewrite_npz, run_cli, small_demoset
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -72,6 +72,11 @@ def test_task_json_entries_are_checked(good_dir, kin, entry, fragment):
     with pytest.raises(DemoFormatError, match="task.json") as info:
         load_demos(good_dir, kin=kin)
     assert fragment in str(info.value)
+
+
+def test_retired_task_entry_is_ignored():
+    """'tool_velocity', written by the code of a removed option, does not make a task.json unreadable."""
+    assert TaskSpec.from_dict({**POUR.to_dict(), "tool_velocity": True}) == POUR
 
 
 def test_task_json_dt_must_match_the_files(good_dir, kin):

@@ -182,3 +182,16 @@ def test_checkpoint_that_cannot_be_resumed_is_named(tmp_path, best, value, fragm
     with pytest.raises(CheckpointError, match="checkpoint") as info:
         load_checkpoint(tmp_path)
     assert fragment in str(info.value)
+
+
+def test_checkpoint_log_trans_may_hold_minus_inf(tmp_path):
+    """An impossible transition is -inf in log_trans: such a checkpoint resumes (the finiteness
+    check once refused it and broke --resume)."""
+    from lfd.learning.checkpoint import STATE_TENSORS, FitProgress, save_checkpoint
+    state = {k: torch.zeros(2, dtype=torch.float64) for k in STATE_TENSORS}
+    state["alignment"] = torch.zeros(2, dtype=torch.int64)
+    state["log_trans"] = torch.tensor([0.0, float("-inf")], dtype=torch.float64)
+    save_checkpoint(tmp_path, FitProgress(config={"seed": 0}, fingerprint="abc", restart_losses=(-1.0,),
+                                          loss_history=((-1.0,),), em_iterations=(1,), notes=(),
+                                          best_restart=0, best_state=state))
+    assert load_checkpoint(tmp_path).best_state["log_trans"][1] == float("-inf")

@@ -193,6 +193,7 @@ CASES = [
     ("band-word", _train("--band", "wide"), "--band must be a whole number of steps or 'none', got 'wide'"),
     ("band-negative", _train("--band", "-2"), "FitConfig.band must be a whole number >= 0, got -2"),
     ("subsample-0", _train("--subsample", "0"), "--subsample must be at least 1, got 0"),
+    ("subsample-step", _train("--subsample", "101"), "--subsample 101: a time step of 10.1 s, more than a task's 10 s"),
     ("subsample-no-task-json", _no_task_json, "has no task.json, where the model's sampling interval is kept"),
     ("subsample-word", _train("--subsample", "half"), "argument --subsample: invalid int value: 'half'"),
     ("floor-zero", _train("--floor-task", "0"),
