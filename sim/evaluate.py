@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from lfd.cli import USER_ERRORS, UsageError, error_line
+from lfd.learning.checkpoint import read_json
 from lfd.train_cli import default_demos, ensure_demos
 from lfd.train_cli import main as train_main
 from sim.attitude import demo_tilt
@@ -356,10 +357,7 @@ def _read_summary(path: Path) -> dict:
     """A model's ``summary.json`` (``{}`` when there is none); ``UsageError`` when it is damaged."""
     if not path.is_file():
         return {}
-    try:
-        rec = json.loads(path.read_text())
-    except (ValueError, UnicodeDecodeError, RecursionError) as e:
-        raise UsageError(f"{path}: not valid JSON ({error_line(e)}); train the model again or delete the file") from None
+    rec = read_json(path, UsageError)
     if not isinstance(rec, dict):
         raise UsageError(f"{path}: a training summary is a JSON object, got {type(rec).__name__}")
     return rec

@@ -209,13 +209,19 @@ def save_checkpoint(folder: str | Path, progress: FitProgress) -> Path:
     return folder / RECORD
 
 
+def read_json(path: Path, error: type[Exception]):
+    """The JSON value in ``path``; ``error`` (naming the file) when it is not valid JSON (or
+    nested too deep to read)."""
+    try:
+        return json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError, RecursionError) as e:
+        raise error(f"{path}: not valid JSON ({e})") from e
+
+
 def read_json_record(path: Path, fmt: str, error: type[Exception], what: str) -> dict:
     """The JSON object in ``path`` whose ``"format"`` is ``fmt``; ``error`` (naming the file) when
     it is not valid JSON (or nested too deep to read) or not ours."""
-    try:
-        rec = json.loads(path.read_text())
-    except (ValueError, UnicodeDecodeError, RecursionError) as e:
-        raise error(f"{path}: not valid JSON ({e})") from e
+    rec = read_json(path, error)
     if not isinstance(rec, dict) or rec.get("format") != fmt:
         raise error(f"{path}: not an lfd {what} (expected format {fmt!r}, got "
                     f"{rec.get('format') if isinstance(rec, dict) else rec!r})")
