@@ -160,11 +160,15 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_
     if demo_seed:
         assert demos is not None  # demos_for names the draw's folder
         ensure_demos(task, demos, demo_seed)
+    what = f"training the {v.name} model ({v.model_key})"
+    if demos is not None and demos.is_dir() and not (demos / "task.json").is_file():
+        # its model would name no task: no time step to execute at (plan.py --model refuses it)
+        raise TrainingFailed(f"{what}: {demos} has no task.json, which gives the model its task and time step; "
+                             f"add one (lfd.learning.tasks.TaskSpec) to the demonstrations", 2)
     argv = ["--task", task, "--tool", v.tool, "--env", v.env, "--out", str(out), "--seed", str(train_seed)]
     if demos is not None:
         argv += ["--demos", str(demos)]
     print(f"[evaluate] training {v.model_key}: lfd-train {shlex.join(argv)}", file=sys.stderr, flush=True)
-    what = f"training the {v.name} model ({v.model_key})"
     try:
         code = train_main(argv)
     except USER_ERRORS() as e:  # bad demonstrations, every restart failing, ...: its reason, one line

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from lfd.cli import UsageError
 from lfd.learning.model import TaskModel
-from lfd.robot.robots import RobotSpec
+from lfd.robot.robots import RobotSpec, resolve_urdf
 
 __all__ = ["check_models_for_task", "load_checked_model", "model_mismatch", "scenario_provides"]
 
@@ -59,6 +59,11 @@ def load_checked_model(model_dir: str | Path, task: str | None = None,
         raise UsageError(f"{what} {model_dir}: the model names no task (its demonstrations had no task.json), "
                          f"so neither its scenes nor its time step are known; add a task.json to the "
                          f"demonstrations (lfd.learning.tasks.TaskSpec: name, dt, ...) and train again")
+    try:
+        resolve_urdf(model.robot.urdf)
+    except FileNotFoundError as e:
+        raise UsageError(f"{what} {model_dir}: its config.json names the robot description "
+                         f"{model.robot.urdf!r}, which is not on this machine ({e})") from e
     own = model.task.name
     if task is not None and own != task:
         raise UsageError(f"{what} {model_dir}: a model of task {own!r}, not {task!r}")

@@ -8,6 +8,7 @@ files in ``test_untrusted_model.py``; these are the rarer ones.)
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -234,6 +235,10 @@ BROKEN_MODELS = [
      "must be real floating-point (dense) tensors"),  # was a NotImplementedError traceback in plan.py
     ("log-trans-positive", lambda d: _break_tensor(d, "log_trans", torch.ones(4, 3, dtype=torch.float64)),
      "log-probabilities"),
+    ("log-trans-no-way", lambda d: _break_tensor(d, "log_trans", torch.tensor([[0.0, -math.inf, -math.inf]] * 4,
+                                                                              dtype=torch.float64)),
+     "no sequence of time steps"),  # loaded, then every plan was 'no_path'
+    ("truncated", lambda d: (d / "model.pt").write_bytes((d / "model.pt").read_bytes()[:300]), "damaged or truncated"),
     ("env-not-one", lambda d: _break_tensor(d, "env", torch.full((1,), 0.5, dtype=torch.float64)), "sum to 1"),
     ("offsets-negative", lambda d: _break_config(d, offsets=[0, -1, 2]), "offsets must be distinct"),
     ("offsets-fraction", lambda d: _break_config(d, offsets=[0, 1.5, 2]), "offsets must be whole numbers"),

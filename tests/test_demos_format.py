@@ -65,6 +65,12 @@ def _tracked_bad_pose():
     return T
 
 
+def _millimetres():
+    T = np.tile(np.eye(4), (3, 1, 1))
+    T[:, :3, 3] = [850.0, 0.0, 0.0]
+    return T
+
+
 # (id, changes to demo_001.npz, expected message fragment)
 BROKEN = [
     ("missing-q", {"q": None}, r"missing key\(s\) \['q'\]"),
@@ -86,6 +92,7 @@ BROKEN = [
     ("pose-nan", {"landmark_poses": np.full((3, 4, 4), np.nan)}, r"'landmark_poses' holds NaN"),
     ("tracked-length", {"landmark_poses": np.tile(np.eye(4), (S1 - 1, 3, 1, 1))},
      rf"must have shape \(3, 4, 4\) or, tracked, \({S1}, 3, 4, 4\)"),
+    ("pose-millimetres", {"landmark_poses": _millimetres()}, r"'bowl' is 850 m from the robot's base"),
     ("tracked-not-rigid", {"landmark_poses": _tracked_bad_pose()}, r"'marker_1' pose at sample 7 is not a rigid"),
     ("landmark-names", {"landmark_names": np.array(["bowl", "marker_1", "vase"])}, r"landmark_names .* differ"),
     ("landmark-dup", {"landmark_names": np.array(["bowl", "bowl", "vase"])}, r"repeats a name"),
@@ -123,6 +130,16 @@ def test_not_a_zip_and_empty_folder(tmp_path, kin):
         load_demos(tmp_path, kin=kin)
     with pytest.raises(DemoFormatError, match="no such demonstration folder"):
         load_demos(tmp_path / "absent", kin=kin)
+
+
+def test_hidden_files_skipped_and_the_suffix_read_in_any_case(good_dir, kin):
+    """``._demo_000.npz`` (macOS resource forks on shared drives) is not a demonstration: it was
+    loaded and refused as damaged; ``DEMO.NPZ`` is one."""
+    (good_dir / "._demo_000.npz").write_bytes(b"\x00\x05\x16\x07 resource fork")
+    (good_dir / "demo_001.npz").rename(good_dir / "DEMO_001.NPZ")
+    loaded = load_demos(good_dir, kin=kin)
+    assert len(loaded.demos) == 2
+    np.testing.assert_array_equal(loaded.demos[0].q, _demoset().demos[1].q)  # sorted by name: 'D' < 'd'
 
 
 def test_cli_one_line_exit_2(good_dir, capsys):

@@ -48,6 +48,21 @@ def test_the_shipped_recordings_import_trim_and_learn_the_hand(tmp_path, capsys)
     assert np.linalg.norm(res.model.tool.numpy() - TRUE_TOOL) < 0.02
 
 
+def test_recordings_found_in_any_case_and_hidden_ones_skipped(tmp_path):
+    """``joints.CSV`` (as some systems write it) was skipped without a word; a hidden copy was read."""
+    from lfd.io.recordings import find_recordings
+    shutil.copytree(DATA / "demo_01", tmp_path / "demo_01")
+    for f in (tmp_path / "demo_01").iterdir():
+        f.rename(f.with_name(f.name.upper()))
+    shutil.copy(DATA / "demo_02" / "joints.csv", tmp_path / "demo_02_JOINTS.csv")
+    shutil.copy(DATA / "demo_02" / "landmarks.csv", tmp_path / "demo_02_Landmarks.csv")
+    shutil.copytree(DATA / "demo_03", tmp_path / ".demo_03")
+    (tmp_path / "._demo_04_joints.csv").write_bytes(b"\x00\x05\x16\x07")
+    found = find_recordings(tmp_path)
+    assert [(n, j.name, None if lm is None else lm.name) for n, j, lm in found] == [
+        ("demo_01", "JOINTS.CSV", "LANDMARKS.CSV"), ("demo_02", "demo_02_JOINTS.csv", "demo_02_Landmarks.csv")]
+
+
 def _write(path: Path, header, rows) -> None:
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
@@ -134,6 +149,9 @@ BAD = [
     ("track-short", lambda d: _corrupt_landmarks(d, lambda r: [x for x in r if x[1] != "hand" or float(x[0]) < 1003]),
      "demo_03/landmarks.csv: landmark 'hand' is read from"),
     ("no-landmarks", lambda d: (d / "demo_03" / "landmarks.csv").unlink(), "no landmark recording beside it"),
+    ("millimetres", lambda d: _corrupt_landmarks(d, lambda r: [x[:2] + [str(float(v) * 1000) for v in x[2:5]] + x[5:]
+                                                       for x in r]),
+     "m from the robot's base, more than 20 m (millimetres given as metres"),  # was imported as metres
 ]
 
 

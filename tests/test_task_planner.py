@@ -389,8 +389,8 @@ def test_default_roadmap_size_scales_with_the_time_steps(kin):
         TaskPlannerSettings(n_vertices=1)
 
 
-def test_can_bypass_follows_the_permitted_transitions():
-    from lfd.planning.growth import can_bypass
+def test_reaches_last_step_follows_the_permitted_transitions():
+    from lfd.learning.priors import reaches_last_step as can_bypass
     lt = np.log(np.tile([0.5, 0.4, 0.1], (6, 1)))  # offsets 0, 1, 2
     lt[-1] = [0.0, -np.inf, -np.inf]
     offsets = (0, 1, 2)

@@ -138,6 +138,10 @@ def _other_robot(d):
     return _model(d, names=("bowl",), robot=arm)
 
 
+def _missing_urdf(d):
+    return _model(d, names=("bowl",), robot=replace(BAXTER_LEFT, urdf=str(d / "gone" / "baxter.urdf")))
+
+
 def _evaluate_models(task: str, model_task=POWDER, names=("bowl",)):
     """plan.py --evaluate --task ``task`` on a --models folder whose learned+learned model was
     trained on ``model_task`` with ``names``."""
@@ -152,6 +156,13 @@ def _incomplete_model(d):
     (d / "m").mkdir()
     (d / "m" / "config.json").write_text(json.dumps({"format": "lfd-task-model/1", "task": {"name": "powder"}}))
     return d / "m"
+
+
+def _evaluate_demos_without_task_json(d: Path, good: Path):
+    shutil.copytree(good, d / "demos")
+    (d / "demos" / "task.json").unlink()
+    return ["plan.py", "--evaluate", "--task", "powder", "--models", str(d / "models"), "--demos", str(d / "demos"),
+            "--variants", "learned+learned", "--scenarios", "1", "--workers", "1", "--out", str(d / "eval")]
 
 
 def _evaluate_summary(text: str):
@@ -190,6 +201,8 @@ CASES = [
     ("bad-covariance", _train("--covariance", "diag"), "argument --covariance: invalid choice: 'diag'"),
     ("restarts-0", _train("--restarts", "0"), "--restarts must be at least 1, got 0"),
     ("time-steps-1", _train("--time-steps", "1"), "--time-steps must be at least 2, got 1"),
+    ("offsets-too-far", _train("--time-steps", "8", "--offsets", "0", "1", "30"),
+     "FitConfig.offsets: 30 would let a demonstration skip more than half of the 8 time steps"),
     ("band-word", _train("--band", "wide"), "--band must be a whole number of steps or 'none', got 'wide'"),
     ("band-negative", _train("--band", "-2"), "FitConfig.band must be a whole number >= 0, got -2"),
     ("subsample-0", _train("--subsample", "0"), "--subsample must be at least 1, got 0"),
@@ -218,6 +231,8 @@ CASES = [
     ("plan-model-other-landmarks", _plan(model=_model),
      "needs landmark(s) ['cup'], which the powder scenarios do not sense; they provide ['bowl', 'marker_1', "),
     ("plan-model-other-robot", _plan(model=_other_robot), "learned for robot 'other_arm' (end link 'tool0'"),
+    ("plan-model-missing-urdf", _plan(model=_missing_urdf),
+     "its config.json names the robot description"),  # named the URDF alone, not where it came from
     ("plan-model-no-task", _plan(model=lambda d: _model(d, names=("bowl",), task=None)),
      "the model names no task (its demonstrations had no task.json)"),  # was planned as powder at 0.1 s
     ("plan-model-other-task", _plan(model=lambda d: _model(d, names=("bowl",), task=replace(POWDER, name="stir"))),
@@ -225,12 +240,15 @@ CASES = [
     ("plan-evaluate-other-landmarks", _evaluate_models("powder", names=("bowl", "cup")),
      "learn-learn: the model needs landmark(s) ['cup']"),
     ("plan-evaluate-other-task", _evaluate_models("pour"), "learn-learn: a model of task 'powder', not 'pour'"),
+    ("plan-evaluate-demos-no-task-json", _evaluate_demos_without_task_json,
+     "has no task.json, which gives the model its task and time step"),  # was trained, run at 0.1 s a step
     ("plan-evaluate-summary-truncated", _evaluate_summary('{"time_st'), "summary.json: not valid JSON"),
     ("plan-evaluate-summary-list", _evaluate_summary("[]"), "a training summary is a JSON object, got list"),
 ]
 NO_OUTPUT = {  # refused before anything was simulated or written
     "plan-model-other-landmarks": "m/plans", "plan-model-other-robot": "m/plans", "plan-model-other-task": "m/plans",
-    "plan-evaluate-other-landmarks": "eval", "plan-evaluate-other-task": "eval"}
+    "plan-evaluate-other-landmarks": "eval", "plan-evaluate-other-task": "eval",
+    "plan-evaluate-demos-no-task-json": "models/learn-learn"}
 FRAGMENT_EXTRA = {"resume-no-checkpoint": "no checkpoint to resume from"}
 
 

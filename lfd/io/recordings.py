@@ -38,7 +38,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from lfd.errors import UserInputError
-from lfd.learning.demos import LIMIT_TOLERANCE, Demonstration, DemoSet
+from lfd.learning.demos import LIMIT_TOLERANCE, Demonstration, DemoSet, far_landmark
 from lfd.learning.tasks import TaskSpec
 from lfd.robot.robots import RobotSpec
 
@@ -82,19 +82,30 @@ class JointColumns:
 
 
 def find_recordings(root: str | Path) -> list[tuple[str, Path, Path | None]]:
-    """``(name, joint CSV, landmark CSV or None)`` of every demonstration under ``root``."""
+    """``(name, joint CSV, landmark CSV or None)`` of every demonstration under ``root``.
+
+    File names are matched without regard to case (``joints.CSV`` as written on some systems);
+    hidden entries (``.name``, such as the ``._*`` files macOS leaves on shared drives) are skipped.
+    """
     root = Path(root)
     if not root.is_dir():
         raise RecordingError(f"{root}: no such folder of recordings")
+
+    def visible(folder: Path) -> dict[str, Path]:  # lower-case name -> entry
+        return {p.name.lower(): p for p in sorted(folder.iterdir()) if not p.name.startswith(".")}
+
+    top = visible(root)
     found = []
-    for d in sorted(p for p in root.iterdir() if p.is_dir()):
-        if (d / "joints.csv").is_file():
-            lm = d / "landmarks.csv"
-            found.append((d.name, d / "joints.csv", lm if lm.is_file() else None))
-    for f in sorted(root.glob("*_joints.csv")):
-        name = f.name[: -len("_joints.csv")]
-        lm = f.with_name(f"{name}_landmarks.csv")
-        found.append((name, f, lm if lm.is_file() else None))
+    for d in (p for p in top.values() if p.is_dir()):
+        inside = visible(d)
+        if "joints.csv" in inside and inside["joints.csv"].is_file():
+            lm = inside.get("landmarks.csv")
+            found.append((d.name, inside["joints.csv"], lm if lm is not None and lm.is_file() else None))
+    for low, f in top.items():
+        if low.endswith("_joints.csv") and f.is_file():
+            name = f.name[: -len("_joints.csv")]
+            lm = top.get(f"{name.lower()}_landmarks.csv")
+            found.append((name, f, lm if lm is not None and lm.is_file() else None))
     if not found:
         raise RecordingError(f"{root}: no recordings (DEMO/joints.csv or DEMO_joints.csv)")
     return found
@@ -273,6 +284,9 @@ def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: Tas
         t = t0 + np.arange(int(math.floor((t1 - t0) * rate + 1e-9)) + 1) / rate  # (S,)
         q = np.stack([np.interp(t, t_raw, q_raw[:, j]) for j in range(q_raw.shape[1])], axis=1)
         poses = np.stack([_at_times(lpath, n, tracks[n], t, max_gap) for n in names], axis=1)  # (S, Z, 4, 4)
+        why = far_landmark(poses, names)
+        if why:
+            raise RecordingError(f"{lpath}: {why}")
         still = all(len(tracks[n][0]) == 1 for n in names)
         demos.append(Demonstration(q=q, dt=1.0 / rate, landmarks=poses[0] if still else poses, name=name))
         report.append({"name": name, "raw_samples": len(t_raw), "samples": len(t),

@@ -5,7 +5,7 @@ Format
 A demonstration set is a folder::
 
     DIR/
-      <any name>.npz       one file per demonstration, loaded in sorted order
+      <any name>.npz       one file per demonstration, loaded in sorted order (hidden files skipped)
       task.json            optional: the TaskSpec (lfd.learning.tasks) the set demonstrates
       ground_truth.json    optional: the hidden truth of a synthetic set (evaluation only)
 
@@ -47,6 +47,7 @@ __all__ = [
     "DemoFormatError",
     "DemoSet",
     "Demonstration",
+    "far_landmark",
     "load_demos",
     "save_demonstration",
     "save_demos",
@@ -55,6 +56,18 @@ __all__ = [
 REQUIRED_KEYS = ("q", "dt", "joint_names", "landmark_poses", "landmark_names", "robot")
 LIMIT_TOLERANCE = 0.02  # rad: recorded joints may sit this far outside the URDF limits
 RIGID_TOLERANCE = 1e-4  # |R^T R - I|, |det R - 1| and bottom-row error allowed in a landmark pose
+MAX_LANDMARK_DISTANCE = 20.0  # m from the robot's base: a landmark farther was given in other units
+
+
+def far_landmark(poses: np.ndarray, names) -> str | None:
+    """Why landmark poses ``(..., Z, 4, 4)`` cannot be metres in the robot's base frame (a landmark
+    farther than ``MAX_LANDMARK_DISTANCE`` from it), or ``None``."""
+    dist = np.linalg.norm(poses[..., :3, 3], axis=-1)  # (..., Z)
+    if dist.size == 0 or float(dist.max()) <= MAX_LANDMARK_DISTANCE:
+        return None
+    idx = np.unravel_index(int(np.argmax(dist)), dist.shape)
+    return (f"landmark {names[idx[-1]]!r} is {float(dist[idx]):.4g} m from the robot's base, more than "
+            f"{MAX_LANDMARK_DISTANCE:g} m (millimetres given as metres, or another frame than the base's?)")
 
 
 class DemoFormatError(UserInputError):
@@ -231,6 +244,9 @@ def _landmark_poses(where: str, value, names: tuple, n_samples: int) -> np.ndarr
         raise _fail(where, f"landmark {names[idx[-1]]!r} pose{at} is not a rigid transform "
                            f"(|R^T R - I| = {ortho[idx]:.2g}, |det R - 1| = {det[idx]:.2g}, "
                            f"bottom row error {bottom[idx]:.2g})")
+    why = far_landmark(poses, names)
+    if why:
+        raise _fail(where, why)
     return poses
 
 
@@ -344,7 +360,11 @@ def _demo_files(path: Path) -> tuple[list[Path], Path]:
     """The ``.npz`` files of a set (a folder, or one file) and the folder holding them."""
     if not path.exists():
         raise DemoFormatError(f"{path}: no such demonstration folder or file")
-    files, root = ([path], path.parent) if path.is_file() else (sorted(path.glob("*.npz")), path)
+    if path.is_file():
+        files, root = [path], path.parent
+    else:  # hidden files (``._demo_000.npz`` from macOS) are not demonstrations; the suffix in any case
+        files = sorted(p for p in path.iterdir() if p.suffix.lower() == ".npz" and not p.name.startswith("."))
+        root = path
     if not files:
         raise DemoFormatError(f"{path}: no demonstration files (*.npz) in this folder")
     return files, root

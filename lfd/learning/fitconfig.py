@@ -202,6 +202,11 @@ class FitConfig:
         if len(set(self.offsets)) != len(self.offsets) or not {0, 1} <= set(self.offsets):
             raise ValueError(f"FitConfig.offsets must be distinct, non-negative and include 0 and 1 (a "
                              f"sample may stay in its step or move to the next); got {self.offsets}")
+        largest = max(2, int(self.time_steps) // 2)
+        if max(self.offsets) > largest:  # was accepted: 30 of 48 let a sample skip most of the task
+            raise ValueError(f"FitConfig.offsets: {max(self.offsets)} would let a demonstration skip more than half "
+                             f"of the {self.time_steps} time steps in one sample; the largest offset is "
+                             f"{largest} (the usual sets are small: 0, 1, 2)")
         if not all(math.isfinite(x) and x > 0 for x in (self.floor_joint, self.floor_task, self.floor_attitude)):
             raise ValueError(f"FitConfig.floor_joint, floor_task and floor_attitude must be positive standard "
                              f"deviations, got {self.floor_joint}, {self.floor_task}, {self.floor_attitude}")

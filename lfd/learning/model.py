@@ -35,6 +35,7 @@ import torch
 
 from lfd.errors import UserInputError
 from lfd.learning.dtw import OFFSETS
+from lfd.learning.priors import reaches_last_step
 from lfd.learning.tasks import FEATURE_SETS, TASK_VECTORS, TaskSpec
 from lfd.robot.robots import RobotSpec
 
@@ -211,6 +212,8 @@ class TaskModel:
                 raise ValueError(f"TaskModel.{name} holds NaN or infinite values")
         if torch.isnan(self.log_trans).any() or (self.log_trans > 1e-9).any():
             raise ValueError("TaskModel.log_trans must hold log-probabilities (<= 0, -inf where not permitted)")
+        if not reaches_last_step(self.log_trans.detach().cpu().numpy(), self.offsets):
+            raise ValueError("TaskModel.log_trans permits no sequence of time steps from the first to the last")
         if abs(float(self.env.sum()) - 1.0) > 1e-4:
             raise ValueError(f"TaskModel.env must sum to 1, got {float(self.env.sum())}")
         if not (torch.diagonal(self.sigma_inv, dim1=-2, dim2=-1) > 0).all():
@@ -365,7 +368,7 @@ class TaskModel:
         try:
             state = torch.load(pt_path, map_location="cpu", weights_only=True)
         except Exception as e:  # torch raises several kinds for foreign or damaged files
-            raise ModelFormatError(f"{pt_path}: cannot be read as a tensor state dict ({e})") from e
+            raise ModelFormatError(f"{pt_path}: cannot be read as a tensor state dict: damaged or truncated? ({e})") from e
         if not isinstance(state, dict) or set(state) != set(cls._TENSORS):
             raise ModelFormatError(f"{pt_path}: expected tensors {list(cls._TENSORS)}, got "
                                    f"{sorted(state) if isinstance(state, dict) else type(state).__name__}")

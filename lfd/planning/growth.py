@@ -7,7 +7,7 @@ batch and a moved-posture batch, then extra posture batches while some step has 
 ``min_free_per_step`` collision-free vertices; a caller can run them one at a time (anytime
 re-planning). It also gives the reachability verdict: the task-relevant steps whose tool-point
 targets no sampled execution's IK reached, and whether the learned transitions can skip them
-(``can_bypass``).
+(``lfd.learning.priors.reaches_last_step``).
 """
 
 from __future__ import annotations
@@ -19,36 +19,14 @@ import numpy as np
 import torch
 
 from lfd.learning.model import TaskModel
+from lfd.learning.priors import reaches_last_step
 from lfd.planning.biased import biased_configurations, chain_edges
 from lfd.planning.roadmap import Roadmap
 from lfd.planning.task_settings import TaskPlannerSettings
 
-__all__ = ["TASK_STEP_SD", "BiasedGrowth", "can_bypass"]
+__all__ = ["TASK_STEP_SD", "BiasedGrowth"]
 
 TASK_STEP_SD = 0.05  # m: a step whose tool-point sd (largest axis) is below this is task-relevant
-
-
-def can_bypass(log_trans: np.ndarray, offsets, blocked, t_start: int) -> bool:
-    """Whether the task's time steps lead from ``t_start`` to the last one avoiding ``blocked``.
-
-    ``log_trans (T, K)``: ``log p(t + offsets[k] | t)``, ``-inf`` where not permitted. A step whose
-    tool-point target no sampled execution reached does not make the task unreachable when the
-    learned transitions can skip it (seen: one sparsely aligned step of the pour, tight by accident,
-    at the source container while the bowl was far); a run of such steps, as when the bowl is out of
-    the arm's reach, cannot be skipped.
-    """
-    T = len(log_trans)
-    bad = np.zeros(T, dtype=bool)
-    bad[np.asarray(blocked, dtype=int)] = True
-    ok = np.zeros(T, dtype=bool)  # the robot is at t_start already, reachable or not
-    ok[t_start] = True
-    for t in range(t_start, T):
-        if not ok[t]:
-            continue
-        for k, lp in zip(offsets, log_trans[t]):
-            if k > 0 and t + k < T and np.isfinite(lp) and not bad[t + k]:
-                ok[t + k] = True
-    return bool(ok[-1])
 
 
 @dataclass
@@ -106,8 +84,8 @@ class BiasedGrowth:
 
     def can_reach_end(self, t_current: int) -> bool:
         """Whether the task can go from ``t_current`` to its last step around the unreachable steps."""
-        return not len(self._unreachable) or can_bypass(self.model.log_trans.detach().cpu().numpy(),
-                                                        self.model.offsets, self._unreachable, int(t_current))
+        return not len(self._unreachable) or reaches_last_step(
+            self.model.log_trans.detach().cpu().numpy(), self.model.offsets, self._unreachable, int(t_current))
 
     def initial(self, rm: Roadmap, landmarks: torch.Tensor, n: int) -> None:
         """Every round of a growth of about ``n`` vertices for ``landmarks (Z, 4, 4)`` (the roadmap's

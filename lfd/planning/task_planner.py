@@ -22,7 +22,7 @@ and uniform samples. When the task-relevant landmarks move by more than ``regrow
 every set the roadmap was grown for, new biased samples are added to the same roadmap; it is
 never rebuilt. When no sampled execution's IK reaches some step's tool-point target (the
 landmark is out of the arm's reach) and the learned transitions cannot skip that step
-(``can_bypass``), ``plan`` returns the status ``unreachable``.
+(``reaches_last_step``), ``plan`` returns the status ``unreachable``.
 
 Interactive rates. A landmark update only marks the edge costs stale (``lfd.planning.edgestore``): the
 next plan recomputes all of them in one batch from per-configuration parts prepared once
