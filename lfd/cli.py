@@ -163,10 +163,7 @@ def check_task_name(text: str) -> str:
 def check_device_available(text: str) -> None:
     """``UsageError`` when this machine cannot put a tensor on the device ``text``."""
     import torch
-    try:
-        dev = torch.device(text)
-    except (RuntimeError, ValueError) as e:
-        raise UsageError(f"--device {text}: not a torch device ({error_line(e)})") from None
+    dev = torch.device(check_device(text))
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise UsageError(f"--device {text}: torch.cuda.is_available() is False on this machine")
     if dev.type == "meta":  # tensors there have shapes but no values: nothing can be computed
