@@ -63,6 +63,20 @@ def test_recordings_found_in_any_case_and_hidden_ones_skipped(tmp_path):
         ("demo_01", "JOINTS.CSV", "LANDMARKS.CSV"), ("demo_02", "demo_02_JOINTS.csv", "demo_02_Landmarks.csv")]
 
 
+def test_a_spreadsheet_byte_order_mark_is_read(tmp_path):
+    """Excel's "CSV UTF-8" starts with a byte-order mark: the first column was read as '\\ufefftime'
+    and the recording refused for a missing 'time' column."""
+    from lfd.io.recordings import find_recordings
+    shutil.copytree(DATA / "demo_01", tmp_path / "demo_01")
+    for name in ("joints.csv", "landmarks.csv"):
+        f = tmp_path / "demo_01" / name
+        f.write_bytes(b"\xef\xbb\xbf" + f.read_bytes())
+    ds, _ = import_recordings(tmp_path, BAXTER_LEFT, 10.0)
+    ref, _ = import_recordings(DATA, BAXTER_LEFT, 10.0)
+    assert len(find_recordings(tmp_path)) == 1
+    np.testing.assert_array_equal(ds.demos[0].q, ref.demos[0].q)
+
+
 def _write(path: Path, header, rows) -> None:
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)

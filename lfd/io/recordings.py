@@ -113,7 +113,8 @@ def find_recordings(root: str | Path) -> list[tuple[str, Path, Path | None]]:
 
 def _read_csv(path: Path) -> tuple[list[str], list[list[str]]]:
     try:
-        with path.open(newline="") as fh:
+        # utf-8-sig: a spreadsheet's byte-order mark is not part of the first column's name
+        with path.open(newline="", encoding="utf-8-sig") as fh:
             rows = [r for r in csv.reader(fh) if r and any(c.strip() for c in r)]
     except (OSError, UnicodeDecodeError, csv.Error) as e:
         raise RecordingError(f"{path}: cannot be read as CSV ({e})") from e
