@@ -34,9 +34,9 @@ from lfd.learning.tasks import task_from_name  # noqa: E402
 
 
 def task_demos(task: str, kin):
-    from lfd.learning.demos import load_demos
+    from lfd.learning.demos import demo_files, load_demos
     folder = ROOT / "runs" / "demos" / task
-    if not any(folder.glob("*.npz")):
+    if not demo_files(folder):
         try:
             from sim.demos import generate
             generate(task, folder, n=11, seed=0)

@@ -175,9 +175,11 @@ def ensure_demos(task: str, demos_dir: Path, seed: int) -> None:
     """Generate 11 demonstrations into ``demos_dir`` when it has none, with the generator an
     installed package registers under the entry-point group ``lfd.demo_generators`` (this
     distribution's simulator registers ``sim.demos.generate``). lfd itself names no simulator."""
-    if demos_dir.is_dir() and any(demos_dir.glob("*.npz")):
-        return
     from importlib.metadata import entry_points
+
+    from lfd.learning.demos import demo_files
+    if demo_files(demos_dir):
+        return
 
     found = sorted(entry_points(group=DEMO_GENERATORS), key=lambda ep: ep.name)
     if not found:

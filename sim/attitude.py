@@ -40,10 +40,10 @@ def demo_tilt(demo_dir: str | Path) -> dict:
     """The demonstrations' tilt: ``{"mean": deg, "per_demo": [deg, ...]}``, each demonstration's
     largest tilt (its held dump or pour) by forward kinematics of its recorded joints, and their
     mean. ``{"mean": nan, "per_demo": []}`` when ``demo_dir`` holds no demonstrations."""
-    from lfd.learning.demos import load_demos
+    from lfd.learning.demos import demo_files, load_demos
     from lfd.robot.kinematics import KinematicModel
 
-    if not any(Path(demo_dir).glob("*.npz")):
+    if not demo_files(demo_dir):
         return {"mean": math.nan, "per_demo": []}
     ds = load_demos(demo_dir)
     kin = KinematicModel.from_spec(ds.robot, dtype=torch.float64)

@@ -41,12 +41,13 @@ def _run(name: str, main, argv: list[str]) -> None:
 
 
 def main() -> int:
+    from lfd.learning.demos import demo_files
     from sim import demos as demos_cli
     from sim import plan_cli
 
     runs = Path("runs")
     demos = runs / "demos" / "powder"
-    if not any(demos.glob("*.npz")):
+    if not demo_files(demos):
         _run("python -m sim.demos", demos_cli.main,
              ["--task", "powder", "--n", "11", "--seed", "0", "--out", str(demos)])
     _run("lfd-plan", plan_cli.main,

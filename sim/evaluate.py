@@ -161,9 +161,10 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_
         assert demos is not None  # demos_for names the draw's folder
         ensure_demos(task, demos, demo_seed)
     what = f"training the {v.name} model ({v.model_key})"
-    if demos is not None and demos.is_dir() and not (demos / "task.json").is_file():
+    folder = None if demos is None else (demos if demos.is_dir() else demos.parent)  # load_demos' rule
+    if folder is not None and folder.is_dir() and not (folder / "task.json").is_file():
         # its model would name no task: no time step to execute at (plan.py --model refuses it)
-        raise TrainingFailed(f"{what}: {demos} has no task.json, which gives the model its task and time step; "
+        raise TrainingFailed(f"{what}: {folder} has no task.json, which gives the model its task and time step; "
                              f"add one (lfd.learning.tasks.TaskSpec) to the demonstrations", 2)
     argv = ["--task", task, "--tool", v.tool, "--env", v.env, "--out", str(out), "--seed", str(train_seed)]
     if demos is not None:

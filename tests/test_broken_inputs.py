@@ -239,6 +239,8 @@ BROKEN_MODELS = [
                                                                               dtype=torch.float64)),
      "no sequence of time steps"),  # loaded, then every plan was 'no_path'
     ("truncated", lambda d: (d / "model.pt").write_bytes((d / "model.pt").read_bytes()[:300]), "damaged or truncated"),
+    ("pickled-module", lambda d: torch.save(torch.nn.Linear(2, 2), d / "model.pt"),
+     "cannot be read as a tensor state dict (Weights only load failed"),  # not 'damaged or truncated?'
     ("env-not-one", lambda d: _break_tensor(d, "env", torch.full((1,), 0.5, dtype=torch.float64)), "sum to 1"),
     ("offsets-negative", lambda d: _break_config(d, offsets=[0, -1, 2]), "offsets must be distinct"),
     ("offsets-fraction", lambda d: _break_config(d, offsets=[0, 1.5, 2]), "offsets must be whole numbers"),

@@ -63,6 +63,25 @@ def test_recordings_found_in_any_case_and_hidden_ones_skipped(tmp_path):
         ("demo_01", "JOINTS.CSV", "LANDMARKS.CSV"), ("demo_02", "demo_02_JOINTS.csv", "demo_02_Landmarks.csv")]
 
 
+@pytest.mark.parametrize("layout", ["folders", "pairs", "folder-and-pair"])
+def test_recordings_whose_names_differ_only_in_case_are_refused(tmp_path, layout):
+    """With names matched in any case, ``DEMO_01`` beside ``demo_01`` would have hidden one of them;
+    ``demo_01/`` beside ``demo_01_joints.csv`` is one recording counted twice."""
+    from lfd.io.recordings import RecordingError, find_recordings
+    if layout == "folders":
+        shutil.copytree(DATA / "demo_01", tmp_path / "demo_01")
+        shutil.copytree(DATA / "demo_02", tmp_path / "DEMO_01")
+    else:
+        for name in ("joints.csv", "landmarks.csv"):
+            shutil.copy(DATA / "demo_01" / name, tmp_path / f"demo_01_{name}")
+        if layout == "pairs":
+            shutil.copy(DATA / "demo_02" / "joints.csv", tmp_path / "Demo_01_joints.csv")
+        else:
+            shutil.copytree(DATA / "demo_02", tmp_path / "demo_01")
+    with pytest.raises(RecordingError, match="differ only in case|two recordings named"):
+        find_recordings(tmp_path)
+
+
 def test_a_spreadsheet_byte_order_mark_is_read(tmp_path):
     """Excel's "CSV UTF-8" starts with a byte-order mark: the first column was read as '\\ufefftime'
     and the recording refused for a missing 'time' column."""
@@ -165,7 +184,7 @@ BAD = [
     ("no-landmarks", lambda d: (d / "demo_03" / "landmarks.csv").unlink(), "no landmark recording beside it"),
     ("millimetres", lambda d: _corrupt_landmarks(d, lambda r: [x[:2] + [str(float(v) * 1000) for v in x[2:5]] + x[5:]
                                                        for x in r]),
-     "m from the robot's base, more than 20 m (millimetres given as metres"),  # was imported as metres
+     "m from the robot's base at sample 0, more than 20 m (millimetres given as metres"),  # was imported as metres
 ]
 
 

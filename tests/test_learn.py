@@ -50,6 +50,11 @@ def test_config_options_are_validated():
         FitConfig(solver=SolverSettings(tool_search=-0.1))
     with pytest.raises(ValueError, match="FitConfig.max_dwell must be at least 1"):
         FitConfig(max_dwell=0.5)
+    assert FitConfig(time_steps=8, offsets=(0, 1, 4)).offsets == (0, 1, 4)  # the largest: max(2, T // 2)
+    with pytest.raises(ValueError, match=r"FitConfig.offsets: 5 is larger than the largest permitted.* = 4"):
+        FitConfig(time_steps=8, offsets=(0, 1, 5))
+    for T in (2, 3):  # the usual set fits the smallest models
+        assert FitConfig(time_steps=T, offsets=(0, 1, 2)).offsets == (0, 1, 2)
 
 
 @pytest.mark.parametrize("init", ["reference", "random", "linear"])

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from lfd.learning.model import (ModelFormatError, TaskModel, features_tensor, landmarks_inverse_tensor,
+from lfd.learning.model import (ModelFormatError, TaskModel, reaches_last_step, features_tensor, landmarks_inverse_tensor,
                        logdet_tensor, step_nll_tensor, virtual_inverse_tensor)
 from lfd.robot.robots import BAXTER_LEFT
 from lfd.learning.synthetic import random_rotation
@@ -183,3 +183,28 @@ def test_load_rejects_foreign_files(tmp_path):
     (tmp_path / "model.pt").write_bytes(b"not a zip file")
     with pytest.raises(ModelFormatError, match="cannot be read"):
         TaskModel.load(tmp_path)
+
+
+def test_reaches_last_step_follows_the_permitted_transitions():
+    lt = np.log(np.tile([0.5, 0.4, 0.1], (6, 1)))  # offsets 0, 1, 2
+    lt[-1] = [0.0, -np.inf, -np.inf]
+    offsets = (0, 1, 2)
+    assert reaches_last_step(lt, offsets, [2], 0)              # 1 -> 3 skips step 2
+    assert not reaches_last_step(lt, offsets, [2, 3], 0)       # two in a row: no offset of 3
+    assert reaches_last_step(lt, offsets, [2, 3], 4)           # already past them
+    assert reaches_last_step(lt, offsets, [0], 0)              # the robot is at step 0 already
+    no_skip = lt.copy()
+    no_skip[:, 2] = -np.inf
+    assert not reaches_last_step(no_skip, offsets, [2], 0)
+    assert not reaches_last_step(lt, offsets, [5], 0)          # the last step itself
+
+
+def test_a_model_whose_transitions_never_reach_the_last_step_is_refused():
+    T, F = 4, len(BAXTER_LEFT.joint_names) + 3
+    args = (torch.zeros(3), torch.ones(1), torch.zeros(T, F), torch.eye(F).repeat(T, 1, 1))
+    stay = torch.log(torch.tensor([[1.0, 0.0, 0.0]] * T))  # offsets 0, 1, 2: only staying permitted
+    with pytest.raises(ValueError, match="no sequence of time steps from the first to the last"):
+        TaskModel(*args, stay, ["bowl"], BAXTER_LEFT)
+    ends = stay.clone()
+    ends[:-1, 1] = 0.0  # every step but the last may move on (the last may only stay)
+    assert TaskModel(*args, ends, ["bowl"], BAXTER_LEFT).time_steps == T

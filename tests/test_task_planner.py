@@ -389,20 +389,6 @@ def test_default_roadmap_size_scales_with_the_time_steps(kin):
         TaskPlannerSettings(n_vertices=1)
 
 
-def test_reaches_last_step_follows_the_permitted_transitions():
-    from lfd.learning.priors import reaches_last_step as can_bypass
-    lt = np.log(np.tile([0.5, 0.4, 0.1], (6, 1)))  # offsets 0, 1, 2
-    lt[-1] = [0.0, -np.inf, -np.inf]
-    offsets = (0, 1, 2)
-    assert can_bypass(lt, offsets, [2], 0)              # 1 -> 3 skips step 2
-    assert not can_bypass(lt, offsets, [2, 3], 0)       # two in a row: no offset of 3
-    assert can_bypass(lt, offsets, [2, 3], 4)           # already past them
-    assert can_bypass(lt, offsets, [0], 0)              # the robot is at step 0 already
-    no_skip = lt.copy()
-    no_skip[:, 2] = -np.inf
-    assert not can_bypass(no_skip, offsets, [2], 0)
-    assert not can_bypass(lt, offsets, [5], 0)          # the last step itself
-
 
 def test_one_unreachable_step_that_the_task_can_skip_still_plans(kin):
     """One step's tool-point target 3 m away (an accidentally tight, sparsely aligned step): the

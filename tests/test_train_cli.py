@@ -202,7 +202,7 @@ CASES = [
     ("restarts-0", _train("--restarts", "0"), "--restarts must be at least 1, got 0"),
     ("time-steps-1", _train("--time-steps", "1"), "--time-steps must be at least 2, got 1"),
     ("offsets-too-far", _train("--time-steps", "8", "--offsets", "0", "1", "30"),
-     "FitConfig.offsets: 30 would let a demonstration skip more than half of the 8 time steps"),
+     "FitConfig.offsets: 30 is larger than the largest permitted, max(2, time_steps // 2) = 4"),
     ("band-word", _train("--band", "wide"), "--band must be a whole number of steps or 'none', got 'wide'"),
     ("band-negative", _train("--band", "-2"), "FitConfig.band must be a whole number >= 0, got -2"),
     ("subsample-0", _train("--subsample", "0"), "--subsample must be at least 1, got 0"),

@@ -2,7 +2,9 @@
 
 A recording of one demonstration is a joint CSV and, optionally, a landmark CSV, either in a
 folder of their own (``DEMO/joints.csv``, ``DEMO/landmarks.csv``) or as a pair of files
-(``DEMO_joints.csv``, ``DEMO_landmarks.csv``). Folders and pairs are taken in sorted order.
+(``DEMO_joints.csv``, ``DEMO_landmarks.csv``), taken in order of name. File names match in any
+case and hidden entries are skipped (``find_recordings``). The files are UTF-8 text (a
+spreadsheet's byte-order mark is allowed).
 
 * **Joints**: a header row, a time column (seconds) and one column per joint of the robot, named
   as in its URDF: the Baxter SDK's joint recorder writes ``time,left_s0,left_s1,...`` (its other
@@ -20,8 +22,9 @@ Every demonstration is resampled to one rate (joints linearly) from its first jo
 What a recording must satisfy, each refused with one line naming the file and row
 (``RecordingError``): the columns exist, every value is a number, time increases (joint rows;
 each landmark's rows), no gap between samples is longer than ``max_gap``, quaternions are unit
-(within ``QUAT_TOLERANCE``), every demonstration names the same landmarks, and every landmark
-has a reading within ``max_gap`` of both ends of each demonstration. Pauses at the start and
+(within ``QUAT_TOLERANCE``), every demonstration names the same landmarks, every landmark
+has a reading within ``max_gap`` of both ends of each demonstration, and none is farther than
+``lfd.learning.demos.MAX_LANDMARK_DISTANCE`` (20 m) from the robot's base (another unit). Pauses at the start and
 end (every joint within ``trim`` rad of where it starts or ends) can be trimmed, and are reported.
 ``import_recordings`` returns the ``DemoSet`` and a report; ``lfd.io.import_csv`` writes it.
 """
@@ -30,6 +33,7 @@ from __future__ import annotations
 
 import csv
 import json
+import itertools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -82,17 +86,28 @@ class JointColumns:
 
 
 def find_recordings(root: str | Path) -> list[tuple[str, Path, Path | None]]:
-    """``(name, joint CSV, landmark CSV or None)`` of every demonstration under ``root``.
+    """``(name, joint CSV, landmark CSV or None)`` of every demonstration under ``root``, in order
+    of name.
 
     File names are matched without regard to case (``joints.CSV`` as written on some systems);
     hidden entries (``.name``, such as the ``._*`` files macOS leaves on shared drives) are skipped.
+    Two entries whose names differ only in case, or two recordings of one name (``DEMO/`` and
+    ``DEMO_joints.csv``), are refused: one would stand for the other on another file system.
     """
     root = Path(root)
     if not root.is_dir():
         raise RecordingError(f"{root}: no such folder of recordings")
 
     def visible(folder: Path) -> dict[str, Path]:  # lower-case name -> entry
-        return {p.name.lower(): p for p in sorted(folder.iterdir()) if not p.name.startswith(".")}
+        out: dict[str, Path] = {}
+        for p in sorted(folder.iterdir()):
+            if p.name.startswith("."):
+                continue
+            if p.name.lower() in out:
+                raise RecordingError(f"{out[p.name.lower()]} and {p}: names that differ only in case; "
+                                     f"keep one of them")
+            out[p.name.lower()] = p
+        return out
 
     top = visible(root)
     found = []
@@ -106,6 +121,10 @@ def find_recordings(root: str | Path) -> list[tuple[str, Path, Path | None]]:
             name = f.name[: -len("_joints.csv")]
             lm = top.get(f"{name.lower()}_landmarks.csv")
             found.append((name, f, lm if lm is not None and lm.is_file() else None))
+    found.sort(key=lambda r: (r[0].lower(), r[0]))
+    for (n1, j1, _), (n2, j2, _) in itertools.pairwise(found):
+        if n1.lower() == n2.lower():
+            raise RecordingError(f"{j1} and {j2}: two recordings named {n1!r}; keep one of them")
     if not found:
         raise RecordingError(f"{root}: no recordings (DEMO/joints.csv or DEMO_joints.csv)")
     return found
@@ -116,7 +135,9 @@ def _read_csv(path: Path) -> tuple[list[str], list[list[str]]]:
         # utf-8-sig: a spreadsheet's byte-order mark is not part of the first column's name
         with path.open(newline="", encoding="utf-8-sig") as fh:
             rows = [r for r in csv.reader(fh) if r and any(c.strip() for c in r)]
-    except (OSError, UnicodeDecodeError, csv.Error) as e:
+    except UnicodeDecodeError as e:
+        raise RecordingError(f"{path}: not UTF-8 text ({e}); save it as 'CSV UTF-8'") from e
+    except (OSError, csv.Error) as e:
         raise RecordingError(f"{path}: cannot be read as CSV ({e})") from e
     if len(rows) < 2:
         raise RecordingError(f"{path}: needs a header row and at least one data row")

@@ -5,8 +5,10 @@ Format
 A demonstration set is a folder::
 
     DIR/
-      <any name>.npz       one file per demonstration, loaded in sorted order (hidden files skipped)
-      task.json            optional: the TaskSpec (lfd.learning.tasks) the set demonstrates
+      <any name>.npz       one file per demonstration (the suffix in any case; hidden files skipped),
+                           loaded in order of name
+      task.json            the TaskSpec (lfd.learning.tasks) the set demonstrates; optional for
+                           learning, needed to plan (its time step; plan.py refuses a model without)
       ground_truth.json    optional: the hidden truth of a synthetic set (evaluation only)
 
 Each ``.npz`` (``numpy.savez``; no pickled objects) holds:
@@ -17,7 +19,8 @@ key                 shape / type    meaning
 ``q``               (S, d) float    joint configurations, radians, one row per sample
 ``dt``              () float        sampling interval, seconds (> 0, the same in every file)
 ``joint_names``     (d,) str        names of the columns of ``q``, as in the URDF
-``landmark_poses``  (Z, 4, 4) float ``T_world_landmark`` of each sensed landmark (rigid), or
+``landmark_poses``  (Z, 4, 4) float ``T_world_landmark`` of each sensed landmark (rigid, metres,
+                                    within 20 m of the base), or
                     (S, Z, 4, 4)    one pose per sample when the landmarks were tracked during
                                     the demonstration (a hand that moves, a person)
 ``landmark_names``  (Z,) str        names, the same set and order in every file
@@ -32,6 +35,7 @@ from __future__ import annotations
 
 import json
 import zipfile
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -47,6 +51,7 @@ __all__ = [
     "DemoFormatError",
     "DemoSet",
     "Demonstration",
+    "demo_files",
     "far_landmark",
     "load_demos",
     "save_demonstration",
@@ -59,14 +64,15 @@ RIGID_TOLERANCE = 1e-4  # |R^T R - I|, |det R - 1| and bottom-row error allowed 
 MAX_LANDMARK_DISTANCE = 20.0  # m from the robot's base: a landmark farther was given in other units
 
 
-def far_landmark(poses: np.ndarray, names) -> str | None:
-    """Why landmark poses ``(..., Z, 4, 4)`` cannot be metres in the robot's base frame (a landmark
-    farther than ``MAX_LANDMARK_DISTANCE`` from it), or ``None``."""
-    dist = np.linalg.norm(poses[..., :3, 3], axis=-1)  # (..., Z)
+def far_landmark(poses: np.ndarray, names: Sequence[str]) -> str | None:
+    """Why landmark poses ``(Z, 4, 4)`` or, tracked, ``(S, Z, 4, 4)`` cannot be metres in the
+    robot's base frame (a landmark farther than ``MAX_LANDMARK_DISTANCE`` from it), or ``None``."""
+    dist = np.linalg.norm(poses[..., :3, 3], axis=-1)  # (Z,) or (S, Z)
     if dist.size == 0 or float(dist.max()) <= MAX_LANDMARK_DISTANCE:
         return None
     idx = np.unravel_index(int(np.argmax(dist)), dist.shape)
-    return (f"landmark {names[idx[-1]]!r} is {float(dist[idx]):.4g} m from the robot's base, more than "
+    at = f" at sample {int(idx[0])}" if dist.ndim == 2 else ""
+    return (f"landmark {names[int(idx[-1])]!r} is {float(dist[idx]):.4g} m from the robot's base{at}, more than "
             f"{MAX_LANDMARK_DISTANCE:g} m (millimetres given as metres, or another frame than the base's?)")
 
 
@@ -356,15 +362,22 @@ def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
                    robot=robot, task=task, ground_truth=ground_truth, root=root)
 
 
+def demo_files(folder: str | Path) -> list[Path]:
+    """The demonstration files of a set's folder: its ``.npz`` files, the suffix in any case,
+    hidden ones (``._demo_000.npz``, macOS's copies on shared drives) skipped, sorted by name
+    without regard to case (then with it); ``[]`` when ``folder`` is not a folder."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    found = (p for p in folder.iterdir() if p.suffix.lower() == ".npz" and not p.name.startswith("."))
+    return sorted(found, key=lambda p: (p.name.lower(), p.name))
+
+
 def _demo_files(path: Path) -> tuple[list[Path], Path]:
     """The ``.npz`` files of a set (a folder, or one file) and the folder holding them."""
     if not path.exists():
         raise DemoFormatError(f"{path}: no such demonstration folder or file")
-    if path.is_file():
-        files, root = [path], path.parent
-    else:  # hidden files (``._demo_000.npz`` from macOS) are not demonstrations; the suffix in any case
-        files = sorted(p for p in path.iterdir() if p.suffix.lower() == ".npz" and not p.name.startswith("."))
-        root = path
+    files, root = ([path], path.parent) if path.is_file() else (demo_files(path), path)
     if not files:
         raise DemoFormatError(f"{path}: no demonstration files (*.npz) in this folder")
     return files, root

@@ -204,9 +204,9 @@ class FitConfig:
                              f"sample may stay in its step or move to the next); got {self.offsets}")
         largest = max(2, int(self.time_steps) // 2)
         if max(self.offsets) > largest:  # was accepted: 30 of 48 let a sample skip most of the task
-            raise ValueError(f"FitConfig.offsets: {max(self.offsets)} would let a demonstration skip more than half "
-                             f"of the {self.time_steps} time steps in one sample; the largest offset is "
-                             f"{largest} (the usual sets are small: 0, 1, 2)")
+            raise ValueError(f"FitConfig.offsets: {max(self.offsets)} is larger than the largest permitted, "
+                             f"max(2, time_steps // 2) = {largest} (an offset k moves a sample k steps on; "
+                             f"the usual sets are small: 0, 1, 2)")
         if not all(math.isfinite(x) and x > 0 for x in (self.floor_joint, self.floor_task, self.floor_attitude)):
             raise ValueError(f"FitConfig.floor_joint, floor_task and floor_attitude must be positive standard "
                              f"deviations, got {self.floor_joint}, {self.floor_task}, {self.floor_attitude}")

@@ -29,13 +29,14 @@ from __future__ import annotations
 import json
 import math
 import numbers
+import pickle
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from lfd.errors import UserInputError
 from lfd.learning.dtw import OFFSETS
-from lfd.learning.priors import reaches_last_step
 from lfd.learning.tasks import FEATURE_SETS, TASK_VECTORS, TaskSpec
 from lfd.robot.robots import RobotSpec
 
@@ -50,6 +51,7 @@ __all__ = [
     "features_tensor",
     "landmarks_inverse_tensor",
     "logdet_tensor",
+    "reaches_last_step",
     "step_nll_tensor",
     "task_features_tensor",
     "task_vectors_tensor",
@@ -136,6 +138,32 @@ def aligned_nll_tensor(f: torch.Tensor, t_idx: torch.Tensor, mu: torch.Tensor,
 
 
 # ----------------------------------------------------------------------------- the model
+
+
+def reaches_last_step(log_trans: np.ndarray, offsets, blocked=(), t_start: int = 0) -> bool:
+    """Whether the task's time steps lead from ``t_start`` to the last one avoiding ``blocked``.
+
+    ``log_trans (T, K)``: ``log p(t + offsets[k] | t)``, ``-inf`` where not permitted. With nothing
+    blocked it is a task model's invariant (transitions that never reach the last step cannot be
+    planned). For the planner, a step whose tool-point target no sampled execution reached does
+    not make the task unreachable when the learned transitions can skip it (seen: one sparsely
+    aligned step of the pour, tight by accident, at the source container while the bowl was far);
+    a run of such steps, as when the bowl is out of the arm's reach, cannot be skipped.
+    """
+    T = len(log_trans)
+    bad = np.zeros(T, dtype=bool)
+    bad[np.asarray(blocked, dtype=int)] = True
+    ok = np.zeros(T, dtype=bool)  # the robot is at t_start already, reachable or not
+    ok[t_start] = True
+    for t in range(t_start, T):
+        if not ok[t]:
+            continue
+        for k, lp in zip(offsets, log_trans[t]):
+            if k > 0 and t + k < T and np.isfinite(lp) and not bad[t + k]:
+                ok[t + k] = True
+    return bool(ok[-1])
+
+
 class TaskModel:
     """A learned task model (plain container of tensors; one dtype/device).
 
@@ -367,7 +395,9 @@ class TaskModel:
         cfg = read_json_record(cfg_path, FORMAT, ModelFormatError, "task model config")
         try:
             state = torch.load(pt_path, map_location="cpu", weights_only=True)
-        except Exception as e:  # torch raises several kinds for foreign or damaged files
+        except pickle.UnpicklingError as e:  # weights_only refuses a pickled object that is not tensors
+            raise ModelFormatError(f"{pt_path}: cannot be read as a tensor state dict ({e})") from e
+        except Exception as e:  # torch raises several kinds for damaged files (a bad zip, a short read)
             raise ModelFormatError(f"{pt_path}: cannot be read as a tensor state dict: damaged or truncated? ({e})") from e
         if not isinstance(state, dict) or set(state) != set(cls._TENSORS):
             raise ModelFormatError(f"{pt_path}: expected tensors {list(cls._TENSORS)}, got "

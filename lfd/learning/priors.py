@@ -29,7 +29,7 @@ import torch
 
 from lfd.learning.dtw import alignment_step_counts
 
-__all__ = ["estimate_log_trans", "floor_prior", "reaches_last_step", "volume_prior"]
+__all__ = ["estimate_log_trans", "floor_prior", "volume_prior"]
 
 
 def floor_prior(sigma_inv: torch.Tensor, floor: torch.Tensor, nu: float) -> torch.Tensor:
@@ -61,27 +61,3 @@ def estimate_log_trans(alignments, time_steps: int, offsets, floor: float = 0.01
     with np.errstate(divide="ignore"):
         return torch.as_tensor(np.log(p), dtype=dtype, device=device)
 
-
-def reaches_last_step(log_trans: np.ndarray, offsets, blocked=(), t_start: int = 0) -> bool:
-    """Whether the task's time steps lead from ``t_start`` to the last one avoiding ``blocked``.
-
-    ``log_trans (T, K)``: ``log p(t + offsets[k] | t)``, ``-inf`` where not permitted. With nothing
-    blocked it is a task model's invariant (transitions that never reach the last step cannot be
-    planned). For the planner, a step whose
-    tool-point target no sampled execution reached does not make the task unreachable when the
-    learned transitions can skip it (seen: one sparsely aligned step of the pour, tight by accident,
-    at the source container while the bowl was far); a run of such steps, as when the bowl is out of
-    the arm's reach, cannot be skipped.
-    """
-    T = len(log_trans)
-    bad = np.zeros(T, dtype=bool)
-    bad[np.asarray(blocked, dtype=int)] = True
-    ok = np.zeros(T, dtype=bool)  # the robot is at t_start already, reachable or not
-    ok[t_start] = True
-    for t in range(t_start, T):
-        if not ok[t]:
-            continue
-        for k, lp in zip(offsets, log_trans[t]):
-            if k > 0 and t + k < T and np.isfinite(lp) and not bad[t + k]:
-                ok[t + k] = True
-    return bool(ok[-1])

@@ -7,7 +7,7 @@ batch and a moved-posture batch, then extra posture batches while some step has 
 ``min_free_per_step`` collision-free vertices; a caller can run them one at a time (anytime
 re-planning). It also gives the reachability verdict: the task-relevant steps whose tool-point
 targets no sampled execution's IK reached, and whether the learned transitions can skip them
-(``lfd.learning.priors.reaches_last_step``).
+(``lfd.learning.model.reaches_last_step``).
 """
 
 from __future__ import annotations
@@ -18,8 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from lfd.learning.model import TaskModel
-from lfd.learning.priors import reaches_last_step
+from lfd.learning.model import TaskModel, reaches_last_step
 from lfd.planning.biased import biased_configurations, chain_edges
 from lfd.planning.roadmap import Roadmap
 from lfd.planning.task_settings import TaskPlannerSettings
