@@ -32,8 +32,8 @@ end (every joint within ``trim`` rad of where it starts or ends) can be trimmed,
 from __future__ import annotations
 
 import csv
-import json
 import itertools
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
