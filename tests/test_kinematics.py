@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pybullet as p
 import pytest
@@ -131,3 +133,32 @@ def test_to_leaves_the_original_model_alone():
     kin = KinematicModel.from_spec(BAXTER_LEFT, dtype=torch.float64)
     kin.to(dtype=torch.float32)
     assert kin.fk(torch.zeros(7, dtype=torch.float64)).dtype == torch.float64
+
+
+def _edited_baxter(tmp_path, old: str, new: str):
+    from lfd.robot.robots import resolve_urdf
+    text = resolve_urdf(BAXTER_LEFT.urdf).read_text()
+    assert old in text
+    path = tmp_path / "baxter.urdf"
+    path.write_text(text.replace(old, new, 1))
+    return KinematicModel(path, BAXTER_LEFT.end_link, BAXTER_LEFT.joint_names)
+
+
+def test_a_transmission_does_not_erase_a_joints_limits(tmp_path):
+    """A ROS <transmission> names joints too; it made left_s0's limits and velocity infinite."""
+    ref = KinematicModel.from_spec(BAXTER_LEFT)
+    kin = _edited_baxter(tmp_path, "</robot>", '<transmission name="t"><type>SimpleTransmission</type>'
+                         '<joint name="left_s0"><hardwareInterface>x</hardwareInterface></joint>'
+                         '<actuator name="m"><mechanicalReduction>1</mechanicalReduction></actuator></transmission></robot>')
+    for k in ("lower", "upper", "velocity"):
+        assert torch.equal(getattr(kin, k), getattr(ref, k)), k
+
+
+@pytest.mark.parametrize("old,new,fragment", [
+    ('lower="-1.70167993878"', 'lower="abc"', "limit lower='abc' is not a number"),  # was a ValueError traceback
+    ('lower="-1.70167993878"', 'lower="nan"', "limit lower is NaN"),  # switched the limit check off
+    ('lower="-1.70167993878"', 'lower="2.5"', "lower limit 2.5 is above upper"),
+])
+def test_a_urdf_with_bad_limits_is_refused(tmp_path, old, new, fragment):
+    with pytest.raises(KinematicsError, match=re.escape(fragment)):
+        _edited_baxter(tmp_path, old, new)

@@ -12,6 +12,7 @@ Conventions (written once, used everywhere in lfd):
 from __future__ import annotations
 
 import copy
+import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -28,17 +29,39 @@ class KinematicsError(UserInputError):
 
 
 def _joint_table(urdf_text: str) -> dict[str, dict]:
-    """Per joint of the URDF: type, lower, upper, velocity (None when absent)."""
+    """Per joint of the URDF (the robot's own ``<joint>`` elements, not the ones a ROS
+    ``<transmission>`` names): type, lower, upper, velocity (None when absent).
+
+    Raises ``KinematicsError`` for a repeated joint name, a limit that is not a number, or NaN;
+    ``ET.ParseError`` for text that is not XML."""
     root = ET.fromstring(urdf_text)
     table: dict[str, dict] = {}
-    for j in root.iter("joint"):
+    for j in root.findall("joint"):  # direct children: <transmission><joint name=...> is not a joint
+        name = j.get("name", "")
+        if name in table:
+            raise KinematicsError(f"the URDF defines joint {name!r} twice")
         lim = j.find("limit")
-
-        def get(k, lim=lim):
-            return float(lim.get(k)) if lim is not None and lim.get(k) is not None else None
-
-        table[j.get("name", "")] = {"type": j.get("type"), "lower": get("lower"), "upper": get("upper"),
-                                "velocity": get("velocity")}
+        row: dict = {"type": j.get("type")}
+        for k in ("lower", "upper", "velocity"):
+            text = lim.get(k) if lim is not None else None
+            try:
+                row[k] = None if text is None else float(text)
+            except ValueError:
+                raise KinematicsError(f"joint {name!r}: limit {k}={text!r} is not a number") from None
+            if row[k] is not None and math.isnan(row[k]):
+                raise KinematicsError(f"joint {name!r}: limit {k} is NaN")
+        if row["lower"] is not None and row["upper"] is not None and row["lower"] > row["upper"]:
+            raise KinematicsError(f"joint {name!r}: lower limit {row['lower']} is above upper {row['upper']}")
+        axis = j.find("axis")
+        xyz = axis.get("xyz") if axis is not None else None
+        if xyz is not None and row["type"] in ("revolute", "continuous", "prismatic"):
+            try:
+                zero = all(float(v) == 0.0 for v in xyz.split())
+            except ValueError:
+                raise KinematicsError(f"joint {name!r}: axis {xyz!r} is not three numbers") from None
+            if zero:
+                raise KinematicsError(f"joint {name!r}: its axis is zero")
+        table[name] = row
     return table
 
 
