@@ -383,6 +383,8 @@ def main(argv=None) -> int:
         raise UsageError(f"--task must be powder or pour, got {args.task!r}")
     if args.n < 1:
         raise UsageError(f"--n must be at least 1, got {args.n}")
+    if not 0 <= args.seed < 2**63:  # was a numpy traceback after the folder was made
+        raise UsageError(f"--seed must be in [0, 2**63), got {args.seed}")
     if args.task_point is not None and (not np.all(np.isfinite(args.task_point))
                                         or np.linalg.norm(args.task_point) > 0.5):
         raise UsageError(f"--task-point must be 3 finite numbers within 0.5 m of the gripper, got {args.task_point}")
@@ -390,6 +392,9 @@ def main(argv=None) -> int:
         check_roll(args.roll)
     except ValueError as e:
         raise UsageError(f"--roll: {e}") from None
+    from lfd.learning.demos import demo_files
+    if demo_files(args.out):  # the new set would mix with the old one, its ground truth with neither
+        raise UsageError(f"--out {args.out} already holds demonstrations; give an empty or new folder")
     out = writable_dir(args.out)
     kept = []
     try:

@@ -25,6 +25,7 @@ from sim.sweep import EXECUTORS
 __all__ = ["PROG", "build_parser", "cli", "main", "parse"]
 
 PROG = "lfd-plan"
+MAX_ROADMAP = 100_000  # vertices: the spatiotemporal product holds T times as many (1e14 filled the memory)
 
 
 def _seed_list(text: str) -> tuple[int, ...]:
@@ -103,8 +104,8 @@ def parse(argv=None, prog: str = PROG):
         args.latency = str(parse_latency(args.latency))
     except ValueError as e:
         raise UsageError(f"--latency: {e}") from None
-    if args.roadmap_size is not None and args.roadmap_size < 10:
-        raise UsageError(f"--roadmap-size must be at least 10, got {args.roadmap_size}")
+    if args.roadmap_size is not None and not 10 <= args.roadmap_size <= MAX_ROADMAP:
+        raise UsageError(f"--roadmap-size must be in [10, {MAX_ROADMAP}], got {args.roadmap_size}")
     seed_opt = "--seed" if args.seeds is None else "--seeds"
     args.seeds = args.seeds or (0 if args.seed is None else args.seed,)
     for opt, seeds, top in (("--scenario-seed", (args.scenario_seed,), MAX_SCENARIO_SEED),

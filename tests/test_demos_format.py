@@ -142,6 +142,19 @@ def test_hidden_files_skipped_and_the_suffix_read_in_any_case(good_dir, kin):
     np.testing.assert_array_equal(loaded.demos[1].q, _demoset().demos[1].q)  # in order of name, any case
 
 
+@pytest.mark.parametrize("name", ["task.json", "ground_truth.json"])
+def test_a_side_file_that_is_a_folder_or_a_broken_link_is_refused(good_dir, kin, name):
+    """It was taken for absent: the model then named no task, and plan.py said the set had no task.json."""
+    (good_dir / name).unlink(missing_ok=True)
+    (good_dir / name).mkdir()
+    with pytest.raises(DemoFormatError, match="not a readable file"):
+        load_demos(good_dir, kin=kin)
+    (good_dir / name).rmdir()
+    (good_dir / name).symlink_to(good_dir / "absent.json")
+    with pytest.raises(DemoFormatError, match="not a readable file"):
+        load_demos(good_dir, kin=kin)
+
+
 def test_cli_one_line_exit_2(good_dir, capsys):
     _rewrite(good_dir / "demo_001.npz", dt=np.float64(-1.0))
     r = run_cli(*entry_point("python -m lfd.learning.demos"), [good_dir], capsys)

@@ -108,9 +108,13 @@ def test_task_point_changes_the_followed_point(tmp_path, kin):
     (["--task", "powder", "--task-point", "0", "0", "nan", "--out", "X"], "--task-point"),
     (["--task", "pour", "--roll", "200", "--out", "X"], "--roll"),
     (["--task", "pour", "--roll", "nan", "--out", "X"], "--roll"),
+    (["--task", "powder", "--seed", "-1", "--out", "X"], "--seed must be in [0, 2**63)"),  # a numpy traceback
+    (["--task", "powder", "--out", "HELD"], "already holds demonstrations"),  # mixed two sets and a ground truth
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, args, msg):
-    args = [a if a != "X" else str(tmp_path / "out") for a in args]
+    (tmp_path / "held").mkdir()
+    (tmp_path / "held" / "demo_000.npz").write_bytes(b"")
+    args = [{"X": str(tmp_path / "out"), "HELD": str(tmp_path / "held")}.get(a, a) for a in args]
     r = run_cli(*entry_point("python -m sim.demos"), args, capsys)
     assert r.returncode == 2
     lines = [ln for ln in r.stderr.strip().splitlines() if ln.strip()]

@@ -182,6 +182,9 @@ BAD = [
     ("track-short", lambda d: _corrupt_landmarks(d, lambda r: [x for x in r if x[1] != "hand" or float(x[0]) < 1003]),
      "demo_03/landmarks.csv: landmark 'hand' is read from"),
     ("no-landmarks", lambda d: (d / "demo_03" / "landmarks.csv").unlink(), "no landmark recording beside it"),
+    ("header-repeats", lambda d: _corrupt_joints(d, lambda r: [[("left_s0" if c == "left_gripper" else c) for c in r[0]]] + r[1:],
+                                               header=True),
+     "demo_02/joints.csv: the header repeats column(s)"),  # the first copy was read without a word
     ("millimetres", lambda d: _corrupt_landmarks(d, lambda r: [x[:2] + [str(float(v) * 1000) for v in x[2:5]] + x[5:]
                                                        for x in r]),
      "m from the robot's base at sample 0, more than 20 m (millimetres given as metres"),  # was imported as metres
@@ -216,6 +219,13 @@ def test_command_line_refusals(tmp_path, capsys):
     (tmp_path / "cols.json").write_text(json.dumps({"degrees": "false"}))  # was read as degrees=True
     r = _import(capsys, DATA, tmp_path / "o6", "--columns", str(tmp_path / "cols.json"))
     assert r.returncode == 2 and "'degrees' must be true or false, got 'false'" in r.stderr, r.stderr
+    for k, (mapping, fragment) in enumerate((
+            ({"joints": {"left_s9": "j0"}}, "names joint(s) ['left_s9'], which robot"),  # a misspelt key was ignored
+            ({"joints": {"left_s1": "left_s0"}}, "reads column(s) ['left_s0'] for more than one joint"),
+            ({"joints": {"left_s0": None}}, "column names must be non-empty strings"))):  # looked up 'None'
+        (tmp_path / f"cols{k}.json").write_text(json.dumps(mapping))
+        r = _import(capsys, DATA, tmp_path / f"o7{k}", "--columns", str(tmp_path / f"cols{k}.json"))
+        assert r.returncode == 2 and fragment in r.stderr and r.stderr.count("\n") == 1, (mapping, r.stderr)
 
 
 def test_angles_recorded_modulo_a_turn_are_unwrapped_into_the_limits(tmp_path):

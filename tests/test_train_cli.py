@@ -225,7 +225,10 @@ CASES = [
     ("plan-model-missing", _plan(model=lambda d: d / "absent"), "no config.json (train one with train.py)"),
     ("plan-model-incomplete", _plan(model=_incomplete_model), "not an lfd task model (missing model.pt)"),
     ("plan-evaluate-no-task", _plan("--evaluate"), "--evaluate needs --task"),
-    ("plan-roadmap-size", _plan("--roadmap-size", "5", model=lambda d: d), "--roadmap-size must be at least 10"),
+    ("plan-roadmap-size", _plan("--roadmap-size", "5", model=lambda d: d), "--roadmap-size must be in [10, 100000], got 5"),
+    ("plan-roadmap-huge", _plan("--roadmap-size", str(10**14), model=lambda d: d),
+     "--roadmap-size must be in [10, 100000], got 100000000000000"),  # filled the memory
+    ("seed-negative", _train("--seed", "-1"), "--seed must be in [0, 2**63), got -1"),  # a numpy traceback
     ("plan-move-bowl-once", _plan("--move-bowl", model=lambda d: d), "--move-bowl is for --evaluate"),
     # plan.py with a model that cannot plan in the simulated scenarios: refused before any simulation
     ("plan-model-other-landmarks", _plan(model=_model),

@@ -76,6 +76,9 @@ class JointColumns:
                 raise ValueError("expected an object with the keys time, joints, degrees")
             if not isinstance(d.get("degrees", False), bool):  # "false" (a string) read as True
                 raise ValueError(f"'degrees' must be true or false, got {d['degrees']!r}")  # noqa: TRY004 (a user's file)
+            names = [d.get("time", "time"), *dict(d.get("joints", {})).values()]
+            if not all(isinstance(c, str) and c for c in names):  # None was looked up as column 'None'
+                raise ValueError(f"column names must be non-empty strings, got {names!r}")
             return cls(time=str(d.get("time", "time")), joints={str(k): str(v) for k, v in d.get("joints", {}).items()},
                        degrees=bool(d.get("degrees", False)))
         except (OSError, ValueError, TypeError, AttributeError) as e:
@@ -83,6 +86,19 @@ class JointColumns:
 
     def column(self, joint: str) -> str:
         return self.joints.get(joint, joint)
+
+    def check(self, robot: RobotSpec) -> None:
+        """``RecordingError`` when the mapping names a joint ``robot`` does not have (a misspelt
+        key: the default column was read instead) or reads one column for two joints or the time."""
+        unknown = sorted(set(self.joints) - set(robot.joint_names))
+        if unknown:
+            raise RecordingError(f"the joint-column mapping names joint(s) {unknown}, which robot {robot.name!r} "
+                                 f"does not have (its joints: {list(robot.joint_names)})")
+        cols = [self.time, *(self.column(j) for j in robot.joint_names)]
+        repeated = sorted({c for c in cols if cols.count(c) > 1})
+        if repeated:
+            raise RecordingError(f"the joint-column mapping reads column(s) {repeated} for more than one joint "
+                                 f"(or for the time)")
 
 
 def find_recordings(root: str | Path) -> list[tuple[str, Path, Path | None]]:
@@ -150,6 +166,9 @@ def _numbers(path: Path, header: list[str], rows: list[list[str]], columns) -> n
     missing = [c for c in columns if c not in header]
     if missing:
         raise RecordingError(f"{path}: missing column(s) {missing} (header: {header})")
+    twice = sorted({c for c in columns if header.count(c) > 1})
+    if twice:  # the first copy was read without a word
+        raise RecordingError(f"{path}: the header repeats column(s) {twice}")
     idx = [header.index(c) for c in columns]
     out = np.empty((len(rows), len(idx)))
     for i, r in enumerate(rows):
@@ -281,6 +300,7 @@ def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: Tas
     if not (math.isfinite(rate) and rate > 0) or not max_gap > 0 or not trim >= 0:
         raise RecordingError(f"rate and max_gap must be positive and trim >= 0, got {rate}, {max_gap}, {trim}")
     columns = columns or JointColumns()
+    columns.check(robot)
     T_base_frame = np.eye(4) if T_base_frame is None else np.asarray(T_base_frame, dtype=float)
     lower, upper = _limits(robot)
     demos, report, names = [], [], None

@@ -386,6 +386,10 @@ def _demo_files(path: Path) -> tuple[list[Path], Path]:
 def _side_files(root: Path):
     """``(task, ground_truth)``: ``task.json`` as a ``TaskSpec`` and ``ground_truth.json``, each
     None when absent."""
+    for name in ("task.json", "ground_truth.json"):
+        side = root / name
+        if (side.exists() or side.is_symlink()) and not side.is_file():  # was taken for absent
+            raise DemoFormatError(f"{side}: not a readable file (a folder or a broken link)")
     task = None
     if (root / "task.json").is_file():
         try:

@@ -212,6 +212,8 @@ class FitConfig:
                              f"deviations, got {self.floor_joint}, {self.floor_task}, {self.floor_attitude}")
         if not (math.isfinite(self.tool_radius) and self.tool_radius > 0):
             raise ValueError(f"FitConfig.tool_radius must be a positive distance in metres, got {self.tool_radius}")
+        if not (math.isfinite(self.logdet_scale) and self.logdet_scale > 0):
+            raise ValueError(f"FitConfig.logdet_scale must be finite and positive, got {self.logdet_scale}")
         if not 0 <= self.prune_threshold < 1:
             raise ValueError(f"FitConfig.prune_threshold must be in [0, 1), got {self.prune_threshold}")
         if not 0 < self.trans_floor < 1.0 / len(self.offsets):

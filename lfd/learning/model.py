@@ -246,8 +246,8 @@ class TaskModel:
             raise ValueError(f"TaskModel.env must sum to 1, got {float(self.env.sum())}")
         if not (torch.diagonal(self.sigma_inv, dim1=-2, dim2=-1) > 0).all():
             raise ValueError("TaskModel.sigma_inv must have a positive diagonal (inverse Cholesky factors)")
-        if not math.isfinite(self.logdet_scale):
-            raise ValueError(f"TaskModel.logdet_scale must be finite, got {self.logdet_scale}")
+        if not (math.isfinite(self.logdet_scale) and self.logdet_scale > 0):
+            raise ValueError(f"TaskModel.logdet_scale must be finite and positive, got {self.logdet_scale}")
 
     # -- basic properties
     @property

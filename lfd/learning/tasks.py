@@ -42,6 +42,8 @@ def check_whole(value, what: str, minimum: int = 1) -> int:
     return int(value)
 
 
+MAX_TOOL_REACH = 2.0  # m from the gripper's origin: a hand-picked tool point farther is in other units
+
 def check_point(value, what: str) -> tuple[float, float, float]:
     """``value`` as 3 floats if it is 3 finite real numbers (a point in metres), else a
     ``ValueError`` naming ``what``."""
@@ -105,6 +107,9 @@ class TaskSpec:
             object.__setattr__(self, "restarts", check_whole(self.restarts, "TaskSpec.restarts", 1))
         object.__setattr__(self, "manual_tool_point",
                            check_point(self.manual_tool_point, "TaskSpec.manual_tool_point"))
+        if math.hypot(*self.manual_tool_point) > MAX_TOOL_REACH:  # 100 m was learned with --tool manual
+            raise ValueError(f"TaskSpec.manual_tool_point {list(self.manual_tool_point)} is more than "
+                             f"{MAX_TOOL_REACH:g} m from the gripper (millimetres given as metres?)")
         if self.features not in FEATURE_SETS:
             raise ValueError(f"TaskSpec.features must be one of {', '.join(FEATURE_SETS)}, got {self.features!r}")
         if not isinstance(self.reference_landmark, str) or not self.reference_landmark:
