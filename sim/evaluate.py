@@ -164,7 +164,8 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_
     folder = None if demos is None else (demos if demos.is_dir() else demos.parent)  # load_demos' rule
     if folder is not None and folder.is_dir() and not (folder / "task.json").is_file():
         # its model would name no task: no time step to execute at (plan.py --model refuses it)
-        raise TrainingFailed(f"{what}: {folder} has no task.json, which gives the model its task and time step; "
+        where = folder if folder == demos else f"{demos}'s folder {folder.resolve()}"
+        raise TrainingFailed(f"{what}: {where} has no task.json, which gives the model its task and time step; "
                              f"add one (lfd.learning.tasks.TaskSpec) to the demonstrations", 2)
     argv = ["--task", task, "--tool", v.tool, "--env", v.env, "--out", str(out), "--seed", str(train_seed)]
     if demos is not None:

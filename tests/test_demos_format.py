@@ -101,6 +101,7 @@ BROKEN = [
     ("robot-differs", {"robot": np.array(json.dumps({**BAXTER_LEFT.to_dict(), "end_link": "left_hand"}))},
      r"recorded on robot"),
     ("names-object", {"landmark_names": np.array(["bowl", 1, None], dtype=object)}, r"cannot read without pickle"),
+    ("names-blank", {"landmark_names": np.array(["bowl", "marker_1", "  "])}, r"holds an empty name"),
 ]
 
 

@@ -165,6 +165,12 @@ def _evaluate_demos_without_task_json(d: Path, good: Path):
             "--variants", "learned+learned", "--scenarios", "1", "--workers", "1", "--out", str(d / "eval")]
 
 
+def _evaluate_demo_file_without_task_json(d: Path, good: Path):
+    argv = _evaluate_demos_without_task_json(d, good)
+    argv[argv.index("--demos") + 1] = str(d / "demos" / "demo_000.npz")  # one file: its folder's task.json
+    return argv
+
+
 def _evaluate_summary(text: str):
     """plan.py --evaluate on a --models folder whose trained model's summary.json holds ``text``."""
     def setup(d: Path, good: Path):
@@ -245,13 +251,16 @@ CASES = [
     ("plan-evaluate-other-task", _evaluate_models("pour"), "learn-learn: a model of task 'powder', not 'pour'"),
     ("plan-evaluate-demos-no-task-json", _evaluate_demos_without_task_json,
      "has no task.json, which gives the model its task and time step"),  # was trained, run at 0.1 s a step
+    ("plan-evaluate-demo-file-no-task-json", _evaluate_demo_file_without_task_json,
+     "demo_000.npz's folder"),  # was trained: the check looked at folders only
     ("plan-evaluate-summary-truncated", _evaluate_summary('{"time_st'), "summary.json: not valid JSON"),
     ("plan-evaluate-summary-list", _evaluate_summary("[]"), "a training summary is a JSON object, got list"),
 ]
 NO_OUTPUT = {  # refused before anything was simulated or written
     "plan-model-other-landmarks": "m/plans", "plan-model-other-robot": "m/plans", "plan-model-other-task": "m/plans",
     "plan-evaluate-other-landmarks": "eval", "plan-evaluate-other-task": "eval",
-    "plan-evaluate-demos-no-task-json": "models/learn-learn"}
+    "plan-evaluate-demos-no-task-json": "models/learn-learn",
+    "plan-evaluate-demo-file-no-task-json": "models/learn-learn"}
 FRAGMENT_EXTRA = {"resume-no-checkpoint": "no checkpoint to resume from"}
 
 

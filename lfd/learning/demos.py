@@ -224,7 +224,7 @@ def _as_names(where: str, key: str, value) -> tuple[str, ...]:
         raise _fail(where, f"key {key!r} holds bytes that are not UTF-8 text ({e})") from e
     if len(set(names)) != len(names):
         raise _fail(where, f"key {key!r} repeats a name: {list(names)}")
-    if not all(names):
+    if not all(n.strip() for n in names):  # '  ' was a name no option could give
         raise _fail(where, f"key {key!r} holds an empty name: {list(names)}")
     return names
 
