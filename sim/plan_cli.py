@@ -58,7 +58,7 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     ap.add_argument("--plot", action="store_true", help="plot the plan against the learned means")
     ap.add_argument("--evaluate", action="store_true", help="run the paper's comparison tables")
     ap.add_argument("--task", choices=("powder", "pour"),
-                    help="task to evaluate (default: none; required with --evaluate)")
+                    help="task to evaluate (default: none; required with --evaluate); with --model, the task the model must be of")
     ap.add_argument("--scenarios", type=int, default=10, metavar="N", help="scenarios per variant")
     seeds = ap.add_mutually_exclusive_group()
     seeds.add_argument("--seed", type=int, default=None, metavar="S", help="base seed of the scenario set (default: 0)")
@@ -175,7 +175,7 @@ def main(argv=None, prog: str = PROG) -> int:
     from sim.model_check import load_checked_model
     from sim.runner import plan_scenario
     from sim.scenarios import draw_scenario
-    _, task_name = load_checked_model(args.model)  # landmarks, robot, task: before any simulation
+    _, task_name = load_checked_model(args.model, args.task)  # landmarks, robot, task: before any simulation
     out = writable_dir(args.out or args.model / "plans")
     scenario = draw_scenario(task_name, args.scenario_seed)
     report, res, model = plan_scenario(args.model, scenario, args.roadmap_size, gui=args.gui,

@@ -156,6 +156,13 @@ def test_a_side_file_that_is_a_folder_or_a_broken_link_is_refused(good_dir, kin,
         load_demos(good_dir, kin=kin)
 
 
+def test_a_task_name_no_option_can_give_is_refused(good_dir, kin):
+    """'my task' passed the set check, but no --task value could then train it."""
+    (good_dir / "task.json").write_text(json.dumps({**POWDER.to_dict(), "name": "my task"}))
+    with pytest.raises(DemoFormatError, match="name of letters, digits"):
+        load_demos(good_dir, kin=kin)
+
+
 def test_cli_one_line_exit_2(good_dir, capsys):
     _rewrite(good_dir / "demo_001.npz", dt=np.float64(-1.0))
     r = run_cli(*entry_point("python -m lfd.learning.demos"), [good_dir], capsys)

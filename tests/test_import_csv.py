@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import re
 import shutil
 from pathlib import Path
@@ -19,7 +20,7 @@ from helpers import run_cli
 from lfd.io.import_csv import main
 from lfd.io.recordings import JointColumns, import_recordings
 from lfd.learning.demos import load_demos
-from lfd.robot.robots import BAXTER_LEFT
+from lfd.robot.robots import BAXTER_LEFT, resolve_urdf
 
 DATA = Path(__file__).resolve().parent / "data" / "recordings"
 TRUE_TOOL = np.array([0.03, -0.02, 0.15])  # tests/data/recordings/TRUTH.txt
@@ -208,12 +209,19 @@ def test_command_line_refusals(tmp_path, capsys):
     (tmp_path / "robot.json").write_text(json.dumps({"name": "x"}))
     r = _import(capsys, DATA, tmp_path / "o3", "--robot-json", str(tmp_path / "robot.json"))
     assert r.returncode == 2 and "--robot-json" in r.stderr
+    spec = {**BAXTER_LEFT.to_dict(), "urdf": str(resolve_urdf(BAXTER_LEFT.urdf))}
+    (tmp_path / "robot_rel.json").write_text(json.dumps({**spec, "urdf": os.path.relpath(spec["urdf"])}))
+    r = _import(capsys, DATA, tmp_path / "o_rel", "--robot-json", str(tmp_path / "robot_rel.json"))
+    assert r.returncode == 0, r.stderr  # a relative URDF path is stored absolute: training elsewhere finds it
+    assert Path(load_demos(tmp_path / "o_rel").robot.urdf) == Path(spec["urdf"])
     assert "no recordings" in _import(capsys, tmp_path / "out", tmp_path / "o4").stderr
     # bad numbers: one line each, not a traceback (NaN in the pose was a scipy error; 1e7 Hz filled the memory)
     for extra, fragment in ((("--frame-pose", "0", "0", "nan", "0", "0", "0", "1"), "--frame-pose needs 7 finite numbers"),
                             (("--frame-pose", "0", "0", "0", "0", "0", "0", "nan"), "--frame-pose needs 7 finite numbers"),
                             (("--rate", "1e7"), "--rate must be within [1, 1000] Hz"),
-                            (("--rate", "0.5"), "--rate must be within [1, 1000] Hz")):
+                            (("--rate", "0.5"), "--rate must be within [1, 1000] Hz"),
+                            (("--max-gap", "0"), "--max-gap must be positive"),  # named 'max_gap' before
+                            (("--trim-pauses", "-1"), "--trim-pauses at least 0")):
         r = _import(capsys, DATA, tmp_path / "o5", *extra)
         assert r.returncode == 2 and fragment in r.stderr and r.stderr.count("\n") == 1, (extra, r.stderr)
     (tmp_path / "cols.json").write_text(json.dumps({"degrees": "false"}))  # was read as degrees=True

@@ -244,6 +244,8 @@ CASES = [
      "its config.json names the robot description"),  # named the URDF alone, not where it came from
     ("plan-model-no-task", _plan(model=lambda d: _model(d, names=("bowl",), task=None)),
      "the model names no task (its demonstrations had no task.json)"),  # was planned as powder at 0.1 s
+    ("plan-model-not-of-task", _plan("--task", "pour", model=lambda d: _model(d, names=("bowl",))),
+     "a model of task 'powder', not 'pour'"),  # --task was ignored with --model
     ("plan-model-other-task", _plan(model=lambda d: _model(d, names=("bowl",), task=replace(POWDER, name="stir"))),
      "a model of task 'stir'; the simulator has scenarios of powder, pour only"),
     ("plan-evaluate-other-landmarks", _evaluate_models("powder", names=("bowl", "cup")),

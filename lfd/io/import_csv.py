@@ -11,6 +11,7 @@ so a refused recording leaves nothing half-written. ``--out`` must not exist yet
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import sys
@@ -65,7 +66,10 @@ def _robot(args):
     from lfd.robot.robots import RobotSpec, robot_from_name
     try:
         if args.robot_json is not None:
-            return RobotSpec.from_dict(json.loads(args.robot_json.read_text()))
+            spec = RobotSpec.from_dict(json.loads(args.robot_json.read_text()))
+            if not spec.urdf.startswith("example-robot-data:"):  # stored in every .npz: absolute, not
+                spec = replace(spec, urdf=str(Path(spec.urdf).expanduser().resolve()))  # the cwd's
+            return spec
         return robot_from_name(args.robot)
     except (OSError, ValueError) as e:
         raise UsageError(f"--robot{'-json' if args.robot_json else ''}: {e}") from e
@@ -95,6 +99,10 @@ def main(argv=None, prog: str = PROG) -> int:
     check_task_name(args.task)
     if args.out.exists():
         raise UsageError(f"--out {args.out}: exists already; choose a new folder")
+    if not (math.isfinite(args.max_gap) and args.max_gap > 0) or not (math.isfinite(args.trim_pauses)
+                                                                      and args.trim_pauses >= 0):
+        raise UsageError(f"--max-gap must be positive and --trim-pauses at least 0, got {args.max_gap}, "
+                         f"{args.trim_pauses}")
     if not (1.0 / MAX_DT <= args.rate <= MAX_RATE) or args.time_steps < 2:
         raise UsageError(f"--rate must be within [{1.0 / MAX_DT:g}, {MAX_RATE:g}] Hz and --time-steps at least 2, "
                          f"got {args.rate}, {args.time_steps}")

@@ -93,8 +93,8 @@ class TaskSpec:
     restarts: int | None = None
 
     def __post_init__(self):
-        if not isinstance(self.name, str) or not self.name:
-            raise ValueError(f"TaskSpec.name must be a non-empty string, got {self.name!r}")
+        if not isinstance(self.name, str) or not TASK_NAME.fullmatch(self.name):  # 'my task' no --task could name
+            raise ValueError(f"TaskSpec.name must be a name of letters, digits, '_' and '-', got {self.name!r}")
         if isinstance(self.dt, bool) or not isinstance(self.dt, numbers.Real) \
                 or not (math.isfinite(self.dt) and self.dt > 0):
             raise ValueError(f"TaskSpec.dt must be a finite positive number of seconds, got {self.dt!r}")
