@@ -61,7 +61,8 @@ def _one_line_exit_2(r, fragment: str) -> None:
     ({"time_steps": 6.9}, "time_steps must be a whole number"),  # was truncated to 6 silently
     ({"dt": float("inf")}, "dt must be a finite positive number"),
     ({"manual_tool_point": [0, 0, float("inf")]}, "manual_tool_point needs 3 finite numbers"),
-    ({"name": {"a": 1}}, "name must be a non-empty string"),
+    ({"name": {"a": 1}}, "name must be a name of letters, digits"),
+    ({"name": "my task"}, "name must be a name of letters, digits"),  # no --task could name it
     ({"reference_landmark": ["bowl"]}, "reference_landmark must be a landmark's name"),
     ({"features": "orientation"}, "features must be one of paper, attitude"),
     ({"dt": 100.0}, "time step in seconds, at most 10; got 100.0"),  # a plan then stepped for hours
