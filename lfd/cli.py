@@ -28,6 +28,7 @@ __all__ = [
     "UsageError",
     "check_device",
     "check_device_available",
+    "check_seed",
     "error_line",
     "run_main",
     "writable_dir",
@@ -150,6 +151,13 @@ def check_device(text: str) -> str:
         raise UsageError(f"--device {text!r} is not a torch device string, e.g. cpu, cuda, cuda:1, mps "
                          f"(torch.device: {error_line(e)})") from None
     return text
+
+
+def check_seed(value: int, option: str = "--seed") -> int:
+    """``value`` if numpy and torch can both be seeded with it ([0, 2**63)), else a ``UsageError``."""
+    if not 0 <= value < 2**63:
+        raise UsageError(f"{option} must be in [0, 2**63), got {value}")
+    return value
 
 
 def check_task_name(text: str) -> str:

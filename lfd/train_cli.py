@@ -40,6 +40,7 @@ from lfd.cli import (
     UsageError,
     check_device,
     check_device_available,
+    check_seed,
     check_task_name,
     run_main,
     writable_dir,
@@ -159,8 +160,7 @@ def parse_args(argv=None, prog: str = PROG):
         raise UsageError(f"--subsample must be at least 1, got {args.subsample}")
     if args.time_steps is not None and args.time_steps < 2:
         raise UsageError(f"--time-steps must be at least 2, got {args.time_steps}")
-    if not 0 <= args.seed < 2**63:  # numpy and torch both take it; was a traceback mid-generation
-        raise UsageError(f"--seed must be in [0, 2**63), got {args.seed}")
+    check_seed(args.seed)  # was a traceback mid-generation
     check_device(args.device)
     check_task_name(args.task)
     if args.demos is None and args.task not in BUILT_IN_TASKS:

@@ -35,7 +35,7 @@ import numpy as np
 import pybullet as p
 import torch
 
-from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
+from lfd.cli import ArgumentParser, UsageError, check_seed, run_main, writable_dir
 from lfd.learning.demos import Demonstration, save_demonstration
 from lfd.learning.tasks import task_from_name
 from lfd.robot.ik import IKConfig, solve_ik
@@ -383,8 +383,7 @@ def main(argv=None) -> int:
         raise UsageError(f"--task must be powder or pour, got {args.task!r}")
     if args.n < 1:
         raise UsageError(f"--n must be at least 1, got {args.n}")
-    if not 0 <= args.seed < 2**63:  # was a numpy traceback after the folder was made
-        raise UsageError(f"--seed must be in [0, 2**63), got {args.seed}")
+    check_seed(args.seed)  # was a numpy traceback after the folder was made
     if args.task_point is not None and (not np.all(np.isfinite(args.task_point))
                                         or np.linalg.norm(args.task_point) > 0.5):
         raise UsageError(f"--task-point must be 3 finite numbers within 0.5 m of the gripper, got {args.task_point}")

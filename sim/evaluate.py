@@ -33,6 +33,7 @@ import numpy as np
 
 from lfd.cli import USER_ERRORS, UsageError, error_line
 from lfd.learning.checkpoint import read_json
+from lfd.learning.demos import set_folder
 from lfd.train_cli import default_demos, ensure_demos
 from lfd.train_cli import main as train_main
 from sim.attitude import demo_tilt
@@ -161,7 +162,7 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_
         assert demos is not None  # demos_for names the draw's folder
         ensure_demos(task, demos, demo_seed)
     what = f"training the {v.name} model ({v.model_key})"
-    folder = None if demos is None else (demos if demos.is_dir() else demos.parent)  # load_demos' rule
+    folder = None if demos is None else set_folder(demos)
     if folder is not None and folder.is_dir() and not (folder / "task.json").is_file():
         # its model would name no task: no time step to execute at (plan.py --model refuses it)
         where = folder if folder == demos else f"{demos}'s folder {folder.resolve()}"

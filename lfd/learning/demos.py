@@ -56,6 +56,7 @@ __all__ = [
     "load_demos",
     "save_demonstration",
     "save_demos",
+    "set_folder",
 ]
 
 REQUIRED_KEYS = ("q", "dt", "joint_names", "landmark_poses", "landmark_names", "robot")
@@ -373,11 +374,19 @@ def demo_files(folder: str | Path) -> list[Path]:
     return sorted(found, key=lambda p: (p.name.lower(), p.name))
 
 
+def set_folder(path: str | Path) -> Path:
+    """The folder of a set given as ``path`` (a folder, or one ``.npz`` of it): where its
+    ``task.json`` and ``ground_truth.json`` are read."""
+    path = Path(path)
+    return path.parent if path.is_file() else path
+
+
 def _demo_files(path: Path) -> tuple[list[Path], Path]:
     """The ``.npz`` files of a set (a folder, or one file) and the folder holding them."""
     if not path.exists():
         raise DemoFormatError(f"{path}: no such demonstration folder or file")
-    files, root = ([path], path.parent) if path.is_file() else (demo_files(path), path)
+    root = set_folder(path)
+    files = [path] if path.is_file() else demo_files(path)
     if not files:
         raise DemoFormatError(f"{path}: no demonstration files (*.npz) in this folder")
     return files, root

@@ -32,6 +32,7 @@ MAX_STEP = 10.0
 # entries task.json files once held, ignored when read: 'tool_velocity', an option measured and removed
 # (docs/EXPERIMENTS.md), was written by the code of that time
 RETIRED_KEYS = frozenset({"tool_velocity"})
+MAX_TOOL_REACH = 2.0  # m from the gripper's origin: a hand-picked tool point farther is in other units
 
 
 def check_whole(value, what: str, minimum: int = 1) -> int:
@@ -41,8 +42,6 @@ def check_whole(value, what: str, minimum: int = 1) -> int:
         raise ValueError(f"{what} must be a whole number >= {minimum}, got {value!r}")
     return int(value)
 
-
-MAX_TOOL_REACH = 2.0  # m from the gripper's origin: a hand-picked tool point farther is in other units
 
 def check_point(value, what: str) -> tuple[float, float, float]:
     """``value`` as 3 floats if it is 3 finite real numbers (a point in metres), else a
