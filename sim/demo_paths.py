@@ -103,7 +103,7 @@ POUR_THROW = 0.08
 NEAR_FAR = (0.5, 0.85)
 
 
-def _facing(bowl_xy) -> float:
+def facing(bowl_xy) -> float:
     """The nominal yaw over the bowl: the bearing from the shoulder, turned right near the body."""
     dx, dy = bowl_xy[0] - SHOULDER_XY[0], bowl_xy[1] - SHOULDER_XY[1]
     near = np.clip((NEAR_FAR[1] - np.hypot(dx, dy)) / (NEAR_FAR[1] - NEAR_FAR[0]), 0.0, 1.0)
@@ -156,7 +156,7 @@ def dump_pose(task: str, bowl_xy, dyaw: float = 0.0, tool_point=None) -> np.ndar
         raise ValueError(f"task must be 'powder' or 'pour', got {task!r}")
     above, roll_deg = DUMP_NOMINAL[task]
     tool_point = TASK_POINTS[task] if tool_point is None else tool_point
-    yaw, roll = _facing(bowl_xy) + dyaw, np.deg2rad(roll_deg)
+    yaw, roll = facing(bowl_xy) + dyaw, np.deg2rad(roll_deg)
     T = np.eye(4)
     T[:3, :3] = tool_rotation(yaw, 0.0, roll)[0]
     T[:3, 3] = (bowl_xy[0], bowl_xy[1], L.TABLE_TOP_Z + L.BOWL_HEIGHT + above)
@@ -171,7 +171,7 @@ def _keyframes(task: str, bowl_xy, start: np.ndarray, rng, tool_point,
     ``roll_deg``: the demonstrator's nominal roll (None: the task's)."""
     bx, by = bowl_xy
     top = L.TABLE_TOP_Z
-    yaw = _facing(bowl_xy) + np.deg2rad(rng.uniform(-10, 10))  # facing differs by some degrees
+    yaw = facing(bowl_xy) + np.deg2rad(rng.uniform(-10, 10))  # facing differs by some degrees
     tilt = np.deg2rad(rng.uniform(-8, 8))                      # and so does the tilt
     x0, y0, _z0, yaw0 = start
     back = np.r_[SHOULDER_XY[0] - x0, SHOULDER_XY[1] - y0, 0.0]

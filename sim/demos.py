@@ -5,7 +5,9 @@ independent draw per demonstration (``placement="uniform"``, the powder's defaul
 hypercube over the whole set (``"stratified"``, the pour's default: each of the ``n`` equal strips
 of the square in x, and each in y, holds exactly one bowl, so that 11 demonstrations cannot by
 chance leave out the bowls near the robot, where the demonstrator turns the tool up to 45 degrees
-to the right; ``DEFAULT_PLACEMENT``). Per demonstration, 4 distractor landmarks at random in the square
+to the right; of several such sets, the one the demonstrator faces from the most varied
+directions, so that the set tells which point of the tool is held over the bowl;
+``DEFAULT_PLACEMENT``, ``bowl_positions``). Per demonstration, 4 distractor landmarks at random in the square
 (powder: markers up to 0.3 m above the table; pour: scissors, spoon, vase, paper towels
 lifted up to 10 inches), each drawn again while the demonstrated motion would hit it (a person
 does not demonstrate through a vase); a hidden task point on the tool (``sim.demo_paths.TASK_POINTS`` or ``task_point``) follows a random path relative
@@ -43,7 +45,7 @@ from lfd.robot.kinematics import KinematicModel
 from lfd.robot.robots import BAXTER_LEFT
 from sim import layout as L
 from sim.attitude import tilts_of
-from sim.demo_paths import DUMP_NOMINAL, TASK_POINTS, DemoPath, check_roll, draw_path
+from sim.demo_paths import DUMP_NOMINAL, TASK_POINTS, DemoPath, check_roll, draw_path, facing
 
 __all__ = [
     "DEFAULT_PLACEMENT",
@@ -69,22 +71,36 @@ PLACEMENTS = ("uniform", "stratified")
 # ones (README, "Results against the paper").
 # The powder's uniform set meets its target and stays as it was measured.
 DEFAULT_PLACEMENT = {"powder": "uniform", "pour": "stratified"}
+# Latin hypercubes drawn for a stratified set, of which the one with the most varied facing is
+# kept: single Latin hypercubes of 11 bowls face them with a spread of 13-25 degrees (seeds 0-7),
+# the best of 16 with 28-35 degrees
+STRATIFIED_CANDIDATES = 16
 
 
 def bowl_positions(n: int, rng: np.random.Generator, placement: str = "uniform") -> np.ndarray:
     """``n`` bowl positions (n, 2), metres in the world xy plane, inside the 30-inch square.
 
-    ``"uniform"``: independent uniform draws. ``"stratified"``: a Latin hypercube, each point
-    still uniform over the square, but each of the ``n`` equal strips in x (and in y) holds
-    exactly one point, in a random order.
+    ``"uniform"``: independent uniform draws. ``"stratified"``: a Latin hypercube (each of the
+    ``n`` equal strips in x, and each in y, holds exactly one point, in a random order), the one
+    of ``STRATIFIED_CANDIDATES`` drawn whose bowls the demonstrator faces from the most varied
+    directions (the largest standard deviation of ``sim.demo_paths.facing``): only demonstrations
+    that face the bowl from different directions tell a point on the tool that stays over the
+    bowl from one that is carried round it (docs/EXPERIMENTS.md, *The facing spread decides
+    which point the pour learns*).
     """
     if placement not in PLACEMENTS:
         raise ValueError(f"placement must be one of {PLACEMENTS}, got {placement!r}")
     n, c, h = int(n), np.asarray(L.SQUARE_CENTER_XY), L.SQUARE_HALF
     if placement == "uniform":  # this exact expression: a seed gives the bowls it always gave
         return c + rng.uniform(-h, h, (n, 2))  # (n, 2)
-    u = np.stack([(rng.permutation(n) + rng.uniform(0.0, 1.0, n)) / n for _ in range(2)], axis=1)  # (n, 2) in [0, 1)
-    return c + (2.0 * u - 1.0) * h
+    best, best_spread = None, -1.0
+    for _ in range(STRATIFIED_CANDIDATES):
+        u = np.stack([(rng.permutation(n) + rng.uniform(0.0, 1.0, n)) / n for _ in range(2)], axis=1)  # (n, 2) in [0, 1)
+        bowls = c + (2.0 * u - 1.0) * h  # (n, 2)
+        spread = float(np.std([facing(b) for b in bowls]))
+        if spread > best_spread:
+            best, best_spread = bowls, spread
+    return best
 
 
 @dataclass(frozen=True)
@@ -368,6 +384,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--placement", choices=PLACEMENTS, default=None,
                     help="bowl positions over the square: independent uniform draws or a Latin hypercube "
+                         "(the most varied facing of 16) "
                          f"(default: the task's, {DEFAULT_PLACEMENT})")
     ap.add_argument("--task-point", type=float, nargs=3, metavar=("X", "Y", "Z"),
                     help="hidden tool point, metres in the gripper frame (default: the task's)")

@@ -8,8 +8,8 @@ import torch
 
 from lfd.robot.kinematics import KinematicModel
 from sim import layout as L
-from sim.demo_paths import TASK_POINTS
-from sim.demos import MIN_IN_BOWL, bowl_positions, generate, replay
+from sim.demo_paths import TASK_POINTS, facing
+from sim.demos import MIN_IN_BOWL, STRATIFIED_CANDIDATES, bowl_positions, generate, replay
 from helpers import entry_point, run_cli
 OTHER_POINT = (0.0, 0.02, 0.12)  # on the spoon's handle, not the default
 
@@ -169,13 +169,41 @@ def test_stratified_bowls_put_one_bowl_in_each_strip(n):
             assert sorted(np.floor(u[:, axis] * n).astype(int).tolist()) == list(range(n))
 
 
-def test_stratified_bowls_are_uniform_over_the_square():
-    """Each stratified bowl is still uniform over the square (the marginal of a Latin hypercube)."""
+def _latin_hypercube(n, rng):
+    """One plain Latin hypercube of n bowls, as ``bowl_positions`` draws each candidate."""
+    c, h = np.asarray(L.SQUARE_CENTER_XY), L.SQUARE_HALF
+    u = np.stack([(rng.permutation(n) + rng.uniform(0.0, 1.0, n)) / n for _ in range(2)], axis=1)
+    return c + (2.0 * u - 1.0) * h
+
+
+def _facing_spread(bowls):
+    return float(np.degrees(np.std([facing(b) for b in bowls])))
+
+
+def test_stratified_bowls_are_the_candidate_with_the_most_varied_facing():
+    """The stratified set is the one of STRATIFIED_CANDIDATES Latin hypercubes, drawn from the same
+    generator, that the demonstrator faces from the most varied directions; a single Latin
+    hypercube can face its bowls within a narrow fan (seed 2: 13 degrees), the chosen set cannot."""
+    for seed in range(30):
+        rng = np.random.default_rng(seed)
+        candidates = [_latin_hypercube(11, rng) for _ in range(STRATIFIED_CANDIDATES)]
+        widest = max(candidates, key=_facing_spread)
+        chosen = bowl_positions(11, np.random.default_rng(seed), "stratified")
+        assert np.array_equal(chosen, widest)
+    single = [_facing_spread(_latin_hypercube(11, np.random.default_rng(s))) for s in range(100)]
+    chosen = [_facing_spread(bowl_positions(11, np.random.default_rng(s), "stratified")) for s in range(100)]
+    assert min(single) < 15.0 < 24.0 < min(chosen)
+
+
+def test_stratified_bowls_still_cover_the_whole_square():
+    """Choosing by the facing's spread favours the square's near right corner (the most turned
+    facing), but leaves no part of it out: each of 4 x 4 cells still holds bowls."""
     c, h = np.asarray(L.SQUARE_CENTER_XY), L.SQUARE_HALF
     rng = np.random.default_rng(0)
-    u = np.concatenate([(bowl_positions(11, rng, "stratified") - c + h) / (2 * h) for _ in range(2000)])  # (22000, 2)
-    hist = np.histogram2d(u[:, 0], u[:, 1], bins=4, range=[[0, 1], [0, 1]])[0] / len(u)
-    assert np.abs(hist - 1 / 16).max() < 0.006  # ~3.7 sigma of a multinomial cell at this count
+    u = np.concatenate([(bowl_positions(11, rng, "stratified") - c + h) / (2 * h) for _ in range(300)])  # (3300, 2)
+    hist = np.histogram2d(u[:, 0], u[:, 1], bins=4, range=[[0, 1], [0, 1]])[0] / len(u) * 16  # 1: uniform
+    assert hist.min() > 0.1 and hist.max() < 3.0
+    assert hist[0, 0] == hist.max()  # near the robot (small x), right of it (small y)
 
 
 def test_uniform_bowls_can_leave_a_strip_empty_and_bad_placement_is_refused():
