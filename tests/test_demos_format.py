@@ -65,6 +65,13 @@ def _tracked_bad_pose():
     return T
 
 
+def _tracked_jump():
+    """marker_1 read 8.5 m away at one sample (a tracking glitch), back at the next."""
+    T = np.tile(np.eye(4), (S1, 3, 1, 1))
+    T[10, 1, :3, 3] = [8.5, 0.0, 0.0]
+    return T
+
+
 def _millimetres():
     T = np.tile(np.eye(4), (3, 1, 1))
     T[:, :3, 3] = [850.0, 0.0, 0.0]
@@ -94,6 +101,10 @@ BROKEN = [
      rf"must have shape \(3, 4, 4\) or, tracked, \({S1}, 3, 4, 4\)"),
     ("pose-millimetres", {"landmark_poses": _millimetres()}, r"'bowl' is 850 m from the robot's base"),
     ("tracked-not-rigid", {"landmark_poses": _tracked_bad_pose()}, r"'marker_1' pose at sample 7 is not a rigid"),
+    ("tracked-jump", {"landmark_poses": _tracked_jump()},
+     r"'marker_1' moves 8.5 m between samples 9 and 10 \(85 m/s, more than 5 m/s"),
+    ("motionless", {"q": np.tile([0.0, -0.5, 0.0, 1.2, 0.0, 0.5, 0.0], (S1, 1))},
+     r"demonstration 'demo_001': no joint moves more than 0 rad: the arm never moved"),
     ("landmark-names", {"landmark_names": np.array(["bowl", "marker_1", "vase"])}, r"landmark_names .* differ"),
     ("landmark-dup", {"landmark_names": np.array(["bowl", "bowl", "vase"])}, r"repeats a name"),
     ("joint-order", {"joint_names": np.array(list(reversed(BAXTER_LEFT.joint_names)))}, r"joint_names .* differ"),
@@ -113,6 +124,25 @@ def test_broken_file_refused(good_dir, kin, changes, match):
     assert "demo_00" in str(info.value)  # the message names the file
 
 
+def test_one_recording_saved_twice_is_refused(good_dir, kin):
+    """Two files with the same joint trajectory (a copy) would count twice in the model."""
+    with np.load(good_dir / "demo_000.npz") as z:
+        q0 = z["q"]
+    _rewrite(good_dir / "demo_001.npz", q=q0)
+    with pytest.raises(DemoFormatError, match=r"'demo_000' and 'demo_001' have the same joint trajectory"):
+        load_demos(good_dir, kin=kin)
+    _rewrite(good_dir / "demo_001.npz", q=q0 + 1e-4)  # a near copy is another recording
+    assert len(load_demos(good_dir, kin=kin).demos) == 2
+
+
+def test_a_landmark_moved_by_hand_is_not_a_glitch(good_dir, kin):
+    """A tracked landmark carried 0.3 m in 1 s (0.3 m/s) passes the speed check."""
+    T = np.tile(np.eye(4), (S1, 3, 1, 1))
+    T[:, 0, 0, 3] = 0.5 + np.clip(np.arange(S1) - 10, 0, 10) * 0.03  # dt 0.1 s
+    _rewrite(good_dir / "demo_001.npz", landmark_poses=T)
+    assert load_demos(good_dir, kin=kin).demos[1].landmarks.shape == (S1, 3, 4, 4)
+
+
 def test_unknown_joint_name(tmp_path, kin):
     ds = _demoset()
     bad = [*BAXTER_LEFT.joint_names[:-1], "left_w9"]
@@ -124,6 +154,8 @@ def test_unknown_joint_name(tmp_path, kin):
 
 
 def test_not_a_zip_and_empty_folder(tmp_path, kin):
+    with pytest.raises(DemoFormatError, match="/dev/null: neither a folder of demonstrations nor an .npz"):
+        load_demos("/dev/null", kin=kin)
     with pytest.raises(DemoFormatError, match="no demonstration files"):
         load_demos(tmp_path, kin=kin)
     (tmp_path / "x.npz").write_bytes(b"this is not a zip file")

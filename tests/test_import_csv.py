@@ -97,6 +97,19 @@ def test_a_spreadsheet_byte_order_mark_is_read(tmp_path):
     np.testing.assert_array_equal(ds.demos[0].q, ref.demos[0].q)
 
 
+def test_a_semicolon_separated_csv_is_named(tmp_path):
+    """A spreadsheet in a locale with ',' as its decimal mark writes ';' between fields: the header
+    is one column, and the message says so instead of listing missing columns."""
+    from lfd.io.recordings import RecordingError
+    shutil.copytree(DATA / "demo_01", tmp_path / "demo_01")
+    f = tmp_path / "demo_01" / "joints.csv"
+    f.write_text("\n".join(";".join(c.replace(".", ",") for c in line.split(","))
+                           for line in f.read_text().splitlines()) + "\n")
+    with pytest.raises(RecordingError, match=r"joints.csv: the header 'time;left_s0;.* is one column: the "
+                                             r"fields are separated by ';', not ','"):
+        import_recordings(tmp_path, BAXTER_LEFT, 10.0)
+
+
 def _write(path: Path, header, rows) -> None:
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)

@@ -185,6 +185,19 @@ def test_load_rejects_foreign_files(tmp_path):
         TaskModel.load(tmp_path)
 
 
+def test_load_refuses_a_config_of_another_model(tmp_path):
+    """A config.json copied beside another model's model.pt: its time steps disagree."""
+    m = _model()
+    m.save(tmp_path)
+    assert TaskModel.load(tmp_path).time_steps == m.time_steps
+    cfg = json.loads((tmp_path / "config.json").read_text())
+    cfg["time_steps"] = m.time_steps + 3
+    (tmp_path / "config.json").write_text(json.dumps(cfg))
+    with pytest.raises(ModelFormatError, match=rf"different models \(time_steps {m.time_steps + 3} in "
+                                               rf"config.json, {m.time_steps} in model.pt\)"):
+        TaskModel.load(tmp_path)
+
+
 def test_reaches_last_step_follows_the_permitted_transitions():
     lt = np.log(np.tile([0.5, 0.4, 0.1], (6, 1)))  # offsets 0, 1, 2
     lt[-1] = [0.0, -np.inf, -np.inf]

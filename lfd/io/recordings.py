@@ -42,7 +42,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from lfd.errors import UserInputError
-from lfd.learning.demos import LIMIT_TOLERANCE, Demonstration, DemoSet, far_landmark
+from lfd.learning.demos import LIMIT_TOLERANCE, Demonstration, DemoSet, far_landmark, jumping_landmark, unusable_demos
 from lfd.learning.tasks import TaskSpec
 from lfd.robot.robots import RobotSpec
 
@@ -157,6 +157,10 @@ def _read_csv(path: Path) -> tuple[list[str], list[list[str]]]:
         raise RecordingError(f"{path}: cannot be read as CSV ({e})") from e
     if len(rows) < 2:
         raise RecordingError(f"{path}: needs a header row and at least one data row")
+    other = next((sep for sep in ";\t|" if len(rows[0]) == 1 and sep in rows[0][0]), None)
+    if other is not None:  # a spreadsheet in a locale whose decimal mark is ','
+        raise RecordingError(f"{path}: the header {rows[0][0]!r} is one column: the fields are separated by "
+                             f"{other!r}, not ','; save it as comma-separated CSV, with '.' as the decimal mark")
     return [c.strip() for c in rows[0]], rows[1:]
 
 
@@ -326,7 +330,7 @@ def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: Tas
         t = t0 + np.arange(int(math.floor((t1 - t0) * rate + 1e-9)) + 1) / rate  # (S,)
         q = np.stack([np.interp(t, t_raw, q_raw[:, j]) for j in range(q_raw.shape[1])], axis=1)
         poses = np.stack([_at_times(lpath, n, tracks[n], t, max_gap) for n in names], axis=1)  # (S, Z, 4, 4)
-        why = far_landmark(poses, names)
+        why = far_landmark(poses, names) or jumping_landmark(poses, names, 1.0 / rate)
         if why:
             raise RecordingError(f"{lpath}: {why}")
         still = all(len(tracks[n][0]) == 1 for n in names)
@@ -335,5 +339,8 @@ def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: Tas
                        "trimmed_start_s": round(float(t0 - t_raw[0]), 3), "trimmed_end_s": round(float(t_raw[-1] - t1), 3),
                        "landmarks": "held still" if still else "tracked"})
     assert names is not None  # find_recordings found at least one
+    why = unusable_demos(demos)
+    if why:
+        raise RecordingError(f"{root}: {why}")
     ds = DemoSet(demos=tuple(demos), joint_names=robot.joint_names, landmark_names=names, robot=robot, task=task)
     return ds, report

@@ -53,16 +53,20 @@ __all__ = [
     "Demonstration",
     "demo_files",
     "far_landmark",
+    "jumping_landmark",
     "load_demos",
     "save_demonstration",
     "save_demos",
     "set_folder",
+    "unusable_demos",
 ]
 
 REQUIRED_KEYS = ("q", "dt", "joint_names", "landmark_poses", "landmark_names", "robot")
 LIMIT_TOLERANCE = 0.02  # rad: recorded joints may sit this far outside the URDF limits
 RIGID_TOLERANCE = 1e-4  # |R^T R - I|, |det R - 1| and bottom-row error allowed in a landmark pose
 MAX_LANDMARK_DISTANCE = 20.0  # m from the robot's base: a landmark farther was given in other units
+MAX_LANDMARK_SPEED = 5.0  # m/s: a tracked landmark faster than this between samples is a tracking glitch
+MIN_JOINT_TRAVEL = 0.01  # rad: a demonstration in which no joint moves more than this shows no motion
 
 
 def far_landmark(poses: np.ndarray, names: Sequence[str]) -> str | None:
@@ -75,6 +79,38 @@ def far_landmark(poses: np.ndarray, names: Sequence[str]) -> str | None:
     at = f" at sample {int(idx[0])}" if dist.ndim == 2 else ""
     return (f"landmark {names[int(idx[-1])]!r} is {float(dist[idx]):.4g} m from the robot's base{at}, more than "
             f"{MAX_LANDMARK_DISTANCE:g} m (millimetres given as metres, or another frame than the base's?)")
+
+
+def jumping_landmark(poses: np.ndarray, names: Sequence[str], dt: float) -> str | None:
+    """Why tracked landmark poses ``(S, Z, 4, 4)``, sampled every ``dt`` s, cannot be one object's
+    motion (a landmark faster than ``MAX_LANDMARK_SPEED`` between two samples), or ``None``;
+    ``None`` for landmarks held still ``(Z, 4, 4)``."""
+    if poses.ndim != 4 or poses.shape[0] < 2:
+        return None
+    speed = np.linalg.norm(np.diff(poses[:, :, :3, 3], axis=0), axis=-1) / dt  # (S - 1, Z)
+    if float(speed.max()) <= MAX_LANDMARK_SPEED:
+        return None
+    s, z = (int(i) for i in np.unravel_index(int(np.argmax(speed)), speed.shape))
+    return (f"landmark {names[z]!r} moves {float(speed[s, z]) * dt:.3g} m between samples {s} and {s + 1} "
+            f"({float(speed[s, z]):.3g} m/s, more than {MAX_LANDMARK_SPEED:g} m/s: a tracking glitch, or "
+            f"another marker read as this landmark?)")
+
+
+def unusable_demos(demos: Sequence[Demonstration]) -> str | None:
+    """Why a set's demonstrations cannot be learned from as they are, or ``None``: one in which
+    no joint travels ``MIN_JOINT_TRAVEL`` (the arm never moved: a recording that missed the
+    motion), or two with the same joint trajectory (one recording saved twice would count
+    twice in the model)."""
+    for i, d in enumerate(demos):
+        travel = float(np.ptp(d.q, axis=0).max()) if d.n_samples else 0.0
+        if travel < MIN_JOINT_TRAVEL:
+            return (f"demonstration {d.name or i!r}: no joint moves more than {travel:.2g} rad: the arm never "
+                    f"moved (at least {MIN_JOINT_TRAVEL:g} rad is expected of a demonstration)")
+        for e in demos[:i]:
+            if e.q.shape == d.q.shape and np.array_equal(e.q, d.q):
+                return (f"demonstrations {e.name!r} and {d.name!r} have the same joint trajectory: one "
+                        f"recording twice? (each would count as a demonstration of its own)")
+    return None
 
 
 class DemoFormatError(UserInputError):
@@ -276,6 +312,9 @@ def _check_one(path: Path, raw: dict) -> tuple[Demonstration, tuple, tuple, Robo
         raise _fail(where, f"key 'dt' (sampling interval, seconds) must be positive and at most {MAX_DT:g}, "
                            f"got {float(dt)}{hint}")
     poses = _landmark_poses(where, raw["landmark_poses"], landmark_names, len(q))
+    why = jumping_landmark(poses, landmark_names, float(dt))
+    if why:
+        raise _fail(where, why)
     demo = Demonstration(q=q, dt=float(dt), landmarks=poses, name=path.stem)
     return demo, joint_names, landmark_names, robot
 
@@ -359,6 +398,9 @@ def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
     lower, upper = kin.lower.cpu().numpy(), kin.upper.cpu().numpy()
     for f, d in zip(files, demos):
         _check_limits(str(f), d.q, joint_names, lower, upper, limit_tolerance)
+    why = unusable_demos(demos)
+    if why:
+        raise DemoFormatError(f"{root}: {why}")
     return DemoSet(demos=tuple(demos), joint_names=joint_names, landmark_names=landmark_names,
                    robot=robot, task=task, ground_truth=ground_truth, root=root)
 
@@ -385,6 +427,9 @@ def _demo_files(path: Path) -> tuple[list[Path], Path]:
     """The ``.npz`` files of a set (a folder, or one file) and the folder holding them."""
     if not path.exists():
         raise DemoFormatError(f"{path}: no such demonstration folder or file")
+    if not (path.is_dir() or path.is_file()):
+        raise DemoFormatError(f"{path}: neither a folder of demonstrations nor an .npz file (a device, a "
+                              f"socket or a pipe?)")
     root = set_folder(path)
     files = [path] if path.is_file() else demo_files(path)
     if not files:

@@ -408,7 +408,7 @@ class TaskModel:
             raise ModelFormatError(f"{pt_path}: {not_real} must be real floating-point (dense) tensors")
         try:
             t = {k: v.to(dtype=dtype, device=device) for k, v in state.items()}
-            return cls(t["tool"], t["env"], t["mu"], t["sigma_inv"], t["log_trans"],
+            model = cls(t["tool"], t["env"], t["mu"], t["sigma_inv"], t["log_trans"],
                        landmark_names=cfg["landmark_names"], robot=RobotSpec.from_dict(cfg["robot"]),
                        task=TaskSpec.from_dict(cfg["task"]) if cfg.get("task") else None,
                        all_landmark_names=cfg.get("all_landmark_names"), offsets=cfg["offsets"],
@@ -416,3 +416,10 @@ class TaskModel:
                        options=cfg.get("options"), kin=kin, feature_set=cfg.get("feature_set", "paper"))
         except (KeyError, ValueError, TypeError) as e:
             raise ModelFormatError(f"{model_dir}: inconsistent task model ({e})") from e
+        said = {"time_steps": model.time_steps, "n_features": model.n_features}
+        wrong = {k: (cfg[k], v) for k, v in said.items() if k in cfg and cfg[k] != v}
+        if wrong:  # config.json from another model beside this model.pt
+            raise ModelFormatError(f"{model_dir}: config.json and model.pt are of different models ("
+                                   + ", ".join(f"{k} {a!r} in config.json, {b} in model.pt" for k, (a, b) in wrong.items())
+                                   + ")")
+        return model
