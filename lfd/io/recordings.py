@@ -24,7 +24,7 @@ What a recording must satisfy, each refused with one line naming the file and ro
 each landmark's rows), no gap between samples is longer than ``max_gap``, quaternions are unit
 (within ``QUAT_TOLERANCE``), every demonstration names the same landmarks, every landmark
 has a reading within ``max_gap`` of both ends of each demonstration, and none is farther than
-``lfd.learning.demos.MAX_LANDMARK_DISTANCE`` (20 m) from the robot's base (another unit). Pauses at the start and
+``lfd.learning.demo_checks.MAX_LANDMARK_DISTANCE`` (20 m) from the robot's base (another unit). Pauses at the start and
 end (every joint within ``trim`` rad of where it starts or ends) can be trimmed, and are reported.
 ``import_recordings`` returns the ``DemoSet`` and a report; ``lfd.io.import_csv`` writes it.
 """
@@ -42,7 +42,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from lfd.errors import UserInputError
-from lfd.learning.demos import LIMIT_TOLERANCE, Demonstration, DemoSet, far_landmark, jumping_landmark, unusable_demos
+from lfd.learning.demo_checks import far_landmark, jumping_landmark, unusable_demos
+from lfd.learning.demos import LIMIT_TOLERANCE, Demonstration, DemoSet
 from lfd.learning.tasks import TaskSpec
 from lfd.robot.robots import RobotSpec
 
@@ -339,7 +340,7 @@ def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: Tas
                        "trimmed_start_s": round(float(t0 - t_raw[0]), 3), "trimmed_end_s": round(float(t_raw[-1] - t1), 3),
                        "landmarks": "held still" if still else "tracked"})
     assert names is not None  # find_recordings found at least one
-    why = unusable_demos(demos)
+    why = unusable_demos([d.q for d in demos], [d.name for d in demos])
     if why:
         raise RecordingError(f"{root}: {why}")
     ds = DemoSet(demos=tuple(demos), joint_names=robot.joint_names, landmark_names=names, robot=robot, task=task)

@@ -35,13 +35,13 @@ from __future__ import annotations
 
 import json
 import zipfile
-from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from lfd.errors import UserInputError
+from lfd.learning.demo_checks import far_landmark, jumping_landmark, unusable_demos
 from lfd.learning.tasks import MAX_DT, TaskSpec, check_point, check_stride
 from lfd.robot.robots import RobotSpec
 from lfd.robot.se3 import rigid_errors
@@ -64,53 +64,6 @@ __all__ = [
 REQUIRED_KEYS = ("q", "dt", "joint_names", "landmark_poses", "landmark_names", "robot")
 LIMIT_TOLERANCE = 0.02  # rad: recorded joints may sit this far outside the URDF limits
 RIGID_TOLERANCE = 1e-4  # |R^T R - I|, |det R - 1| and bottom-row error allowed in a landmark pose
-MAX_LANDMARK_DISTANCE = 20.0  # m from the robot's base: a landmark farther was given in other units
-MAX_LANDMARK_SPEED = 5.0  # m/s: a tracked landmark faster than this between samples is a tracking glitch
-MIN_JOINT_TRAVEL = 0.01  # rad: a demonstration in which no joint moves more than this shows no motion
-
-
-def far_landmark(poses: np.ndarray, names: Sequence[str]) -> str | None:
-    """Why landmark poses ``(Z, 4, 4)`` or, tracked, ``(S, Z, 4, 4)`` cannot be metres in the
-    robot's base frame (a landmark farther than ``MAX_LANDMARK_DISTANCE`` from it), or ``None``."""
-    dist = np.linalg.norm(poses[..., :3, 3], axis=-1)  # (Z,) or (S, Z)
-    if dist.size == 0 or float(dist.max()) <= MAX_LANDMARK_DISTANCE:
-        return None
-    idx = np.unravel_index(int(np.argmax(dist)), dist.shape)
-    at = f" at sample {int(idx[0])}" if dist.ndim == 2 else ""
-    return (f"landmark {names[int(idx[-1])]!r} is {float(dist[idx]):.4g} m from the robot's base{at}, more than "
-            f"{MAX_LANDMARK_DISTANCE:g} m (millimetres given as metres, or another frame than the base's?)")
-
-
-def jumping_landmark(poses: np.ndarray, names: Sequence[str], dt: float) -> str | None:
-    """Why tracked landmark poses ``(S, Z, 4, 4)``, sampled every ``dt`` s, cannot be one object's
-    motion (a landmark faster than ``MAX_LANDMARK_SPEED`` between two samples), or ``None``;
-    ``None`` for landmarks held still ``(Z, 4, 4)``."""
-    if poses.ndim != 4 or poses.shape[0] < 2:
-        return None
-    speed = np.linalg.norm(np.diff(poses[:, :, :3, 3], axis=0), axis=-1) / dt  # (S - 1, Z)
-    if float(speed.max()) <= MAX_LANDMARK_SPEED:
-        return None
-    s, z = (int(i) for i in np.unravel_index(int(np.argmax(speed)), speed.shape))
-    return (f"landmark {names[z]!r} moves {float(speed[s, z]) * dt:.3g} m between samples {s} and {s + 1} "
-            f"({float(speed[s, z]):.3g} m/s, more than {MAX_LANDMARK_SPEED:g} m/s: a tracking glitch, or "
-            f"another marker read as this landmark?)")
-
-
-def unusable_demos(demos: Sequence[Demonstration]) -> str | None:
-    """Why a set's demonstrations cannot be learned from as they are, or ``None``: one in which
-    no joint travels ``MIN_JOINT_TRAVEL`` (the arm never moved: a recording that missed the
-    motion), or two with the same joint trajectory (one recording saved twice would count
-    twice in the model)."""
-    for i, d in enumerate(demos):
-        travel = float(np.ptp(d.q, axis=0).max()) if d.n_samples else 0.0
-        if travel < MIN_JOINT_TRAVEL:
-            return (f"demonstration {d.name or i!r}: no joint moves more than {travel:.2g} rad: the arm never "
-                    f"moved (at least {MIN_JOINT_TRAVEL:g} rad is expected of a demonstration)")
-        for e in demos[:i]:
-            if e.q.shape == d.q.shape and np.array_equal(e.q, d.q):
-                return (f"demonstrations {e.name!r} and {d.name!r} have the same joint trajectory: one "
-                        f"recording twice? (each would count as a demonstration of its own)")
-    return None
 
 
 class DemoFormatError(UserInputError):
@@ -266,9 +219,10 @@ def _as_names(where: str, key: str, value) -> tuple[str, ...]:
     return names
 
 
-def _landmark_poses(where: str, value, names: tuple, n_samples: int) -> np.ndarray:
-    """``landmark_poses`` checked: ``(Z, 4, 4)`` or ``(S, Z, 4, 4)`` (tracked, one pose per sample),
-    finite and rigid, ``Z`` the names' count."""
+def _landmark_poses(where: str, value, names: tuple, n_samples: int, dt: float) -> np.ndarray:
+    """``landmark_poses`` checked: ``(Z, 4, 4)`` or ``(S, Z, 4, 4)`` (tracked, one pose per sample
+    every ``dt`` s), finite and rigid, ``Z`` the names' count, metres in the base frame, tracked
+    ones moving as an object can (``lfd.learning.demo_checks``)."""
     shape = f"({len(names)}, 4, 4) or, tracked, ({n_samples}, {len(names)}, 4, 4)"
     if value.dtype.kind not in "fiu" or value.ndim not in (3, 4):
         raise _fail(where, f"key 'landmark_poses' must be numeric of shape {shape} to match 'landmark_names' "
@@ -287,7 +241,7 @@ def _landmark_poses(where: str, value, names: tuple, n_samples: int) -> np.ndarr
         raise _fail(where, f"landmark {names[idx[-1]]!r} pose{at} is not a rigid transform "
                            f"(|R^T R - I| = {ortho[idx]:.2g}, |det R - 1| = {det[idx]:.2g}, "
                            f"bottom row error {bottom[idx]:.2g})")
-    why = far_landmark(poses, names)
+    why = far_landmark(poses, names) or jumping_landmark(poses, names, dt)
     if why:
         raise _fail(where, why)
     return poses
@@ -311,10 +265,7 @@ def _check_one(path: Path, raw: dict) -> tuple[Demonstration, tuple, tuple, Robo
         hint = " (milliseconds given as seconds?)" if dt > MAX_DT else ""
         raise _fail(where, f"key 'dt' (sampling interval, seconds) must be positive and at most {MAX_DT:g}, "
                            f"got {float(dt)}{hint}")
-    poses = _landmark_poses(where, raw["landmark_poses"], landmark_names, len(q))
-    why = jumping_landmark(poses, landmark_names, float(dt))
-    if why:
-        raise _fail(where, why)
+    poses = _landmark_poses(where, raw["landmark_poses"], landmark_names, len(q), float(dt))
     demo = Demonstration(q=q, dt=float(dt), landmarks=poses, name=path.stem)
     return demo, joint_names, landmark_names, robot
 
@@ -398,7 +349,7 @@ def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
     lower, upper = kin.lower.cpu().numpy(), kin.upper.cpu().numpy()
     for f, d in zip(files, demos):
         _check_limits(str(f), d.q, joint_names, lower, upper, limit_tolerance)
-    why = unusable_demos(demos)
+    why = unusable_demos([d.q for d in demos], [d.name for d in demos])
     if why:
         raise DemoFormatError(f"{root}: {why}")
     return DemoSet(demos=tuple(demos), joint_names=joint_names, landmark_names=landmark_names,
