@@ -143,6 +143,9 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     p.add_argument("--tool-radius", type=float, default=None, metavar="M",
                    help="the tool's size: how far from the gripper's origin the learned tool point may lie "
                         "(default: lfd.learning.learn.FitConfig's, 0.5)")
+    p.add_argument("--workers", type=int, default=None, metavar="K",
+                   help="restarts run at once, one thread each (default: one per CPU, at most the restarts); "
+                        "the model is the same for any K")
     p.add_argument("--resume", action="store_true",
                    help="continue from the checkpoint in --out (same options and demonstrations)")
     p.add_argument("--quiet", action="store_true",
@@ -158,6 +161,8 @@ def parse_args(argv=None, prog: str = PROG):
         raise UsageError(f"--restarts must be at least 1, got {args.restarts}")
     if args.subsample is not None and args.subsample < 1:
         raise UsageError(f"--subsample must be at least 1, got {args.subsample}")
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers must be at least 1, got {args.workers}")
     if args.time_steps is not None and args.time_steps < 2:
         raise UsageError(f"--time-steps must be at least 2, got {args.time_steps}")
     check_seed(args.seed)  # was a traceback mid-generation
@@ -382,7 +387,7 @@ def _reconcile_checkpoint(resumed, out: Path, cfg, ds, guard) -> None:
 
 def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
     from lfd.learning.checkpoint import atomic_write_text, save_checkpoint
-    from lfd.learning.learn import fit
+    from lfd.learning.learn import fit, restart_workers
     from lfd.robot.kinematics import KinematicModel
 
     resumed = _checkpoint(args, out, progress)
@@ -394,7 +399,8 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
     n_obs = ds.subsample(cfg.subsample).n_observations  # what the fit learns from
     every = f" (1 in {cfg.subsample} of {ds.n_observations})" if cfg.subsample > 1 else ""
     print(f"{len(ds.demos)} demonstrations, {n_obs} observations{every} at dt {ds.dt * cfg.subsample:g} s, landmarks "
-          f"{list(ds.landmark_names)}; T={cfg.time_steps}, {cfg.restarts} restarts", flush=True)
+          f"{list(ds.landmark_names)}; T={cfg.time_steps}, {cfg.restarts} restarts "
+          f"({restart_workers(args.workers, cfg.restarts)} at once)", flush=True)
     log = Logger(out, ds.joint_names, quiet=args.quiet, prog=prog)
     shown = [len(resumed.notes) if resumed else 0]
 
@@ -409,7 +415,7 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
     try:
         with warnings.catch_warnings():  # the fit's RuntimeWarnings are shown by on_restart / at the end
             warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"lfd\.learning\.learn")
-            result = fit(ds, kin, cfg, callback=log, on_restart=on_restart, resume=resumed)
+            result = fit(ds, kin, cfg, callback=log, on_restart=on_restart, resume=resumed, workers=args.workers)
         log.final(result)
     except ValueError as e:  # every restart failed, the refit failed, a non-finite model
         raise UsageError(str(e)) from e

@@ -255,11 +255,65 @@ def test_non_finite_restart_is_dropped(synth, kin):
         return tool.sum() * (math.nan if calls["n"] < 2 else 0.0)
 
     with pytest.warns(RuntimeWarning, match="restart 0 dropped"):
-        res = fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=2, zeta_prior=prior, solver=SolverSettings(tool_search=0.0)))
+        res = fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=2, zeta_prior=prior, solver=SolverSettings(tool_search=0.0)),
+                  workers=1)  # the poisoned call is the first one made: restart 0's, one restart at a time
     assert math.isnan(res.restart_losses[0]) and math.isfinite(res.final_loss)
     assert res.best_restart == 1 and any("restart 0 dropped" in w for w in res.warnings)
     with pytest.raises(ValueError, match="every one of the 1 restarts failed"):
         fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=1, zeta_prior=lambda t, w: t.sum() * math.nan))
+
+
+def test_restarts_in_threads_give_the_fit_and_the_events_of_one_at_a_time(synth, kin):
+    """Restarts run in parallel threads, restart 0 held up so that later ones finish first: the
+    model, the losses, the per-iteration events and the checkpoints' progress are those of the
+    restarts run one at a time (events of a restart that ran ahead are held back)."""
+    import threading
+    import time
+
+    ds, _ = synth
+    lock, first = threading.Lock(), []
+
+    def slow_first_call(tool, w):  # the first call anywhere sleeps: its restart finishes last
+        with lock:
+            wait = not first
+            first.append(1)
+        if wait:
+            time.sleep(1.0)
+        return tool.new_zeros(())
+
+    cfg = FitConfig(time_steps=T_STEPS, restarts=3, seed=2, zeta_prior=slow_first_call)
+    runs = {}
+    for workers in (1, 3):
+        events, progress = [], []
+        first.clear()
+        res = fit(ds, kin, cfg, callback=lambda ev: events.append((ev["stage"], ev["restart"], ev["iteration"], ev["loss"])),
+                  on_restart=lambda p: progress.append(p.restart_losses), workers=workers)
+        runs[workers] = res, events, progress
+    (a, ev_a, pr_a), (b, ev_b, pr_b) = runs[1], runs[3]
+    assert ev_b == ev_a and pr_b == pr_a and len(pr_a) == 3
+    assert [e[1] for e in ev_a if e[0] == "restart"] == sorted(e[1] for e in ev_a if e[0] == "restart")
+    assert a.restart_losses == b.restart_losses and a.best_restart == b.best_restart
+    for x, y in ((a.model.mu, b.model.mu), (a.model.sigma_inv, b.model.sigma_inv), (a.model.tool, b.model.tool),
+                 (a.model.env, b.model.env)):
+        assert torch.equal(x, y)
+    with pytest.raises(ValueError, match="workers must be a whole number >= 1"):
+        fit(ds, kin, cfg, workers=0)
+
+
+def test_an_error_in_a_restart_thread_ends_the_fit(synth, kin):
+    """An exception other than a diverged restart ends the fit: it is raised as it is, and the
+    events of the restarts that ran beside it are never delivered."""
+    ds, _ = synth
+    calls = []
+
+    def callback(ev):
+        calls.append(ev["restart"])
+        if ev["restart"] == 0 and ev["iteration"] == 1:
+            raise KeyError("the caller's callback failed")
+
+    with pytest.raises(KeyError, match="the caller's callback failed"):
+        fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=6, seed=0), callback=callback, workers=2)
+    assert set(calls) == {0}  # later restarts' events were held, never delivered
 
 
 def test_tool_search_starts_lbfgs_from_the_best_grid_point(synth, kin):

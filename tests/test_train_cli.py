@@ -206,6 +206,7 @@ CASES = [
     ("bad-tool", _train("--tool", "spoon"), "argument --tool: invalid choice: 'spoon'"),
     ("bad-covariance", _train("--covariance", "diag"), "argument --covariance: invalid choice: 'diag'"),
     ("restarts-0", _train("--restarts", "0"), "--restarts must be at least 1, got 0"),
+    ("workers-0", _train("--workers", "0"), "--workers must be at least 1, got 0"),
     ("time-steps-1", _train("--time-steps", "1"), "--time-steps must be at least 2, got 1"),
     ("offsets-too-far", _train("--time-steps", "8", "--offsets", "0", "1", "30"),
      "FitConfig.offsets: 30 is larger than the largest permitted, max(2, time_steps // 2) = 4"),

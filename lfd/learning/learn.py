@@ -34,8 +34,11 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
+import threading
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -56,7 +59,8 @@ from lfd.learning.fitconfig import DTYPES, ENV_MODES, INITS, M_STEPS, TOOL_MODES
 from lfd.learning.identify import check_learnable, identifiability_notes
 from lfd.learning.model import TaskModel
 
-__all__ = ["ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitResult", "fit", "initial_guesses"]
+__all__ = ["ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitResult", "fit", "initial_guesses",
+           "restart_workers"]
 
 def _resolve(cfg: FitConfig):
     if str(cfg.device).startswith("cuda") and not torch.cuda.is_available():
@@ -101,7 +105,7 @@ def initial_guesses(seed: int, lengths, time_steps: int, n_landmarks: int, cfg: 
 
 
 def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart=None,
-        resume: FitProgress | None = None) -> FitResult:
+        resume: FitProgress | None = None, workers: int | None = None) -> FitResult:
     """Learn a ``TaskModel`` from a ``DemoSet`` (Sec. IV).
 
     Parameters
@@ -117,6 +121,10 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
     resume : a ``FitProgress`` of an earlier fit with the same config and demonstrations; its
         restarts are not run again; the starts come from ``initial_guesses``, so the result
         equals an uninterrupted fit's.
+    workers : restarts run at once, each in its own thread (None: one per CPU this process may
+        use, at most ``config.restarts``). The fit, its callbacks and its ``on_restart`` calls
+        are the same for any number: each restart is computed alone, and the events of a
+        restart that runs ahead of an earlier one are held back until that one has finished.
 
     Raises
     ------
@@ -135,11 +143,13 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
             why = f"has {resume.restarts_done} restarts, more than the {cfg.restarts} asked for"
         if why:
             raise CheckpointError(f"{where}: cannot resume, the checkpoint was {why}")
+    if workers is not None and (isinstance(workers, bool) or int(workers) != workers or workers < 1):
+        raise ValueError(f"workers must be a whole number >= 1 or None, got {workers!r}")
     threads = torch.get_num_threads()
     if cfg.solver.num_threads is not None:
         torch.set_num_threads(int(cfg.solver.num_threads))
     try:
-        return _fit(demoset, kin, cfg, callback, dtype, device, on_restart, resume)
+        return _fit(demoset, kin, cfg, callback, dtype, device, on_restart, resume, workers)
     finally:
         torch.set_num_threads(threads)
 
@@ -239,10 +249,53 @@ def _emitter(callback, stage: str, r: int, lm_names):
     return on_iter
 
 
+class _Stopped(Exception):
+    """Raised in a restart's thread when the fit is being abandoned (an exception elsewhere)."""
+
+
+class _OrderedEvents:
+    """The restarts' per-iteration events to ``callback`` in restart order, whichever thread
+    computes them: the current restart's pass at once, a later one's wait until every earlier
+    restart has finished (``advance``). ``stop``: set when the fit is abandoned; the next event
+    of every running restart then raises ``_Stopped``."""
+
+    def __init__(self, callback, first: int):
+        self.callback, self.current = callback, first
+        self.held: dict[int, list] = {}
+        self.lock = threading.Lock()
+        self.stop = threading.Event()
+
+    def emit(self, r: int, event: dict) -> None:
+        if self.stop.is_set():
+            raise _Stopped
+        if self.callback is None:
+            return
+        with self.lock:
+            if r == self.current:
+                self.callback(event)
+            else:
+                self.held.setdefault(r, []).append(event)
+
+    def advance(self, r: int) -> None:
+        """Restart ``r`` is the current one now (every earlier one has finished)."""
+        with self.lock:
+            self.current = r
+            for event in self.held.pop(r, []):
+                self.callback(event)
+
+
+def restart_workers(workers: int | None, restarts: int) -> int:
+    """Threads for ``restarts`` restarts: ``workers``, or one per CPU this process may use."""
+    if workers is None:
+        workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(int(workers), restarts))
+
+
 def _run_restarts(demoset, data: FitData, cfg: FitConfig, fixed, callback, dtype, device, on_restart,
-                  resume, fingerprint: str) -> _RestartLog:
+                  resume, fingerprint: str, workers: int | None = None) -> _RestartLog:
     """The EM from ``cfg.restarts`` initial guesses (those a resumed checkpoint finished are
-    skipped, not repeated); ``on_restart`` gets the progress after each."""
+    skipped, not repeated), ``workers`` at once in threads (see ``fit``); ``on_restart`` gets the
+    progress after each, in restart order."""
     names = tuple(demoset.landmark_names)
     Z = len(names)
     fixed_tool, fixed_env = fixed
@@ -251,29 +304,44 @@ def _run_restarts(demoset, data: FitData, cfg: FitConfig, fixed, callback, dtype
     if resume is not None:
         log = _RestartLog(list(resume.loss_history), list(resume.restart_losses), list(resume.em_iterations),
                           list(resume.notes), _restore(resume, data, dtype, device), resume.restarts_done)
-    fitter = EMFitter(data, cfg, dtype, device, list(range(Z)))
     starts = initial_guesses(cfg.seed, data.lengths, cfg.time_steps, Z, cfg, fixed_tool, fixed_env,
                              series=[d.q for d in demoset.demos])
-    for r, (align, tool0, w0) in enumerate(itertools.islice(starts, cfg.restarts)):
-        if r < log.first:
-            continue
+    todo = [(r, start) for r, start in enumerate(itertools.islice(starts, cfg.restarts)) if r >= log.first]
+    events = _OrderedEvents(callback, log.first)
+
+    def run(job):
+        r, (align, tool0, w0) = job
+        fitter = EMFitter(data, cfg, dtype, device, list(range(Z)))  # one per restart: it caches
+        emit = _emitter(lambda ev: events.emit(r, ev), "restart", r, names)
         try:
-            state, hist = fitter.em(torch.as_tensor(tool0, dtype=dtype, device=device),
-                                    torch.as_tensor(w0, dtype=dtype, device=device), align,
-                                    learn_tool, learn_env, _emitter(callback, "restart", r, names))
+            return fitter.em(torch.as_tensor(tool0, dtype=dtype, device=device),
+                             torch.as_tensor(w0, dtype=dtype, device=device), align, learn_tool, learn_env, emit)
         except EM_FAILURES as e:
-            log.note(f"restart {r} dropped: {e}")
-            log.histories.append(())
-            log.losses.append(float("nan"))
-            log.iters.append(0)
-        else:
-            log.histories.append(tuple(hist))
-            log.losses.append(hist[-1])
-            log.iters.append(len(hist))
-            if log.best is None or hist[-1] < log.losses[log.best[0]]:
-                log.best = (r, state)
-        if on_restart is not None:
-            on_restart(_progress(cfg, fingerprint, log.histories, log.losses, log.iters, log.notes, log.best))
+            return e
+
+    pool = ThreadPoolExecutor(restart_workers(workers, len(todo) or 1), thread_name_prefix="lfd-restart")
+    try:
+        for (r, _), outcome in zip(todo, pool.map(run, todo)):  # in restart order
+            if isinstance(outcome, Exception):
+                log.note(f"restart {r} dropped: {outcome}")
+                log.histories.append(())
+                log.losses.append(float("nan"))
+                log.iters.append(0)
+            else:
+                state, hist = outcome
+                log.histories.append(tuple(hist))
+                log.losses.append(hist[-1])
+                log.iters.append(len(hist))
+                if log.best is None or hist[-1] < log.losses[log.best[0]]:
+                    log.best = (r, state)
+            events.advance(r + 1)
+            if on_restart is not None:
+                on_restart(_progress(cfg, fingerprint, log.histories, log.losses, log.iters, log.notes, log.best))
+    except BaseException:
+        events.stop.set()  # the running restarts end at their next iteration
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
     if log.best is None:
         raise ValueError(f"every one of the {cfg.restarts} restarts failed: {'; '.join(log.notes)}")
     return log
@@ -321,7 +389,7 @@ def _prune_and_refit(data: FitData, cfg: FitConfig, names, fixed_env, log: _Rest
     return state, kept, final_loss, fitter
 
 
-def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=None) -> FitResult:
+def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=None, workers=None) -> FitResult:
     t0 = time.perf_counter()
     # checkpoints name the demonstrations as given; the fit sees them subsampled
     fingerprint = demos_fingerprint(demoset) if on_restart is not None else ""
@@ -334,7 +402,8 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     t_fk = time.perf_counter() - t0
     torch.manual_seed(cfg.seed)
 
-    log = _run_restarts(demoset, data, cfg, fixed, callback, dtype, device, on_restart, resume, fingerprint)
+    log = _run_restarts(demoset, data, cfg, fixed, callback, dtype, device, on_restart, resume, fingerprint,
+                        workers)
     assert log.best is not None
     best_r = log.best[0]
     env_before = {n: float(x) for n, x in zip(names, log.best[1][1].cpu().numpy())}

@@ -123,9 +123,14 @@ def logdet_tensor(sigma_inv: torch.Tensor) -> torch.Tensor:
 def step_nll_tensor(f: torch.Tensor, mu: torch.Tensor, sigma_inv: torch.Tensor,
                     logdet_scale: float = 1.0) -> torch.Tensor:
     """Eq. 3 for every observation and every step: ``f (N, F)``, ``mu (T, F)``,
-    ``sigma_inv (T, F, F)`` -> ``(N, T)`` in Eq. 3 units."""
-    diff = f[:, None, :] - mu[None, :, :]  # (N, T, F)
-    r = torch.einsum("tij,ntj->nti", sigma_inv, diff)  # (N, T, F)
+    ``sigma_inv (T, F, F)`` -> ``(N, T)`` in Eq. 3 units.
+
+    ``sigma_inv_t (f - mu_t) = sigma_inv_t f - sigma_inv_t mu_t``: every step's product with
+    every observation is one matrix product ``(N, F) @ (F, T F)``, without the ``(N, T, F)``
+    differences."""
+    T, F = mu.shape
+    r = (f @ sigma_inv.reshape(T * F, F).T).reshape(len(f), T, F)  # (N, T, F)
+    r = r - (sigma_inv @ mu[:, :, None])[None, :, :, 0]
     return logdet_scale * logdet_tensor(sigma_inv)[None, :] + (r * r).sum(-1)
 
 

@@ -49,7 +49,7 @@ from lfd.planning.growth import BiasedGrowth
 from lfd.planning.planner import ClosedLoopPlanner, PlanResult
 from lfd.planning.roadmap import Roadmap
 from lfd.planning.stepcost import FK_BATCH, ModelStepCost
-from lfd.planning.task_settings import REGROW_SHARE, TaskPlannerSettings, default_vertices
+from lfd.planning.task_settings import TaskPlannerSettings, default_vertices
 
 __all__ = ["TaskPlanner", "TaskPlannerSettings"]  # the settings live in lfd.planning.task_settings
 
@@ -92,7 +92,7 @@ class TaskPlanner:
         self.growth_pending = False
         regrow = settings.regrow_vertices
         self._growth = BiasedGrowth(model, settings, self._gen, settings.max_vertices or 3 * self.n_vertices,
-                                    round(REGROW_SHARE * self.n_vertices) if regrow is None else regrow)
+                                    round(settings.bias_fraction * self.n_vertices) if regrow is None else regrow)
         self.roadmap: Roadmap | None = None
         self.planner: ClosedLoopPlanner | None = None
         self._missing: str | None = None

@@ -7,10 +7,9 @@ from dataclasses import dataclass, field
 from lfd.planning.planner import PlannerSettings
 from lfd.planning.roadmap import RoadmapSettings
 
-__all__ = ["REGROW_SHARE", "TaskPlannerSettings", "default_vertices"]
+__all__ = ["TaskPlannerSettings", "default_vertices"]
 
 DEFAULT_VERTICES, DEFAULT_VERTICES_STEPS = 1000, 24  # roadmap size for a model of this many steps
-REGROW_SHARE = 0.4  # biased samples drawn for a landmark's new place, as a share of the roadmap size
 
 
 def default_vertices(time_steps: int) -> int:
@@ -39,9 +38,10 @@ class TaskPlannerSettings:
     free-posture ones (the demonstrated tool pose held by any arm posture IK finds from a uniform
     start) alternating with moved-posture ones;
     regrow_distance: landmark motion (m) that triggers new biased samples; regrow_vertices: how
-    many (None: ``REGROW_SHARE`` of the roadmap size, 400 for a 24-step model, as many sampled
-    executions whatever the model's length: a fixed 400 gave the 48-step pour half as many, and
-    its plans after a bowl move poured beside the bowl); max_vertices: the roadmap never grows past this (default 3 x the roadmap size), so a long run
+    many (None: as many as the build's biased share, ``bias_fraction`` of the roadmap size, so a
+    new place gets as many sampled executions as the first, whatever the model's length: a fixed
+    400 gave the 48-step pour a third as many and its plans after a bowl move poured beside the
+    bowl; 40% of the roadmap still lost far-edge moves that a build for the new place pours); max_vertices: the roadmap never grows past this (default 3 x the roadmap size), so a long run
     of landmark moves cannot grow memory without bound; object_radius: a sensed landmark is also an
     obstacle of about this radius (m): when it moves, edges passing near its old or new place are
     checked again; seed: of every random draw. A configuration costs the Mahalanobis term of Eq. 3
