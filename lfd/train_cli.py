@@ -400,7 +400,8 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
     every = f" (1 in {cfg.subsample} of {ds.n_observations})" if cfg.subsample > 1 else ""
     print(f"{len(ds.demos)} demonstrations, {n_obs} observations{every} at dt {ds.dt * cfg.subsample:g} s, landmarks "
           f"{list(ds.landmark_names)}; T={cfg.time_steps}, {cfg.restarts} restarts "
-          f"({restart_workers(args.workers, cfg.restarts)} at once)", flush=True)
+          f"({restart_workers(args.workers, cfg.restarts - (resumed.restarts_done if resumed else 0))} at once)",
+          flush=True)
     log = Logger(out, ds.joint_names, quiet=args.quiet, prog=prog)
     shown = [len(resumed.notes) if resumed else 0]
 

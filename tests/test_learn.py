@@ -265,55 +265,73 @@ def test_non_finite_restart_is_dropped(synth, kin):
 
 def test_restarts_in_threads_give_the_fit_and_the_events_of_one_at_a_time(synth, kin):
     """Restarts run in parallel threads, restart 0 held up so that later ones finish first: the
-    model, the losses, the per-iteration events and the checkpoints' progress are those of the
-    restarts run one at a time (events of a restart that ran ahead are held back)."""
+    model, the losses, the per-iteration events and the checkpoints' progress, in the order of
+    both together, are those of the restarts run one at a time (events of a restart that ran
+    ahead are held back until the earlier ones and their ``on_restart`` are done)."""
     import threading
     import time
 
     ds, _ = synth
-    lock, first = threading.Lock(), []
+    lock, slept = threading.Lock(), []
 
-    def slow_first_call(tool, w):  # the first call anywhere sleeps: its restart finishes last
+    def hold_up_restart_0(tool, w):  # restart 0's first call: tool point 0, uniform weights
+        if not bool(tool.abs().max() == 0) or not torch.allclose(w, torch.full_like(w, 1 / len(w))):
+            return tool.new_zeros(())
         with lock:
-            wait = not first
-            first.append(1)
-        if wait:
+            first = not slept
+            slept.append(1)
+        if first:
             time.sleep(1.0)
         return tool.new_zeros(())
 
-    cfg = FitConfig(time_steps=T_STEPS, restarts=3, seed=2, zeta_prior=slow_first_call)
+    cfg = FitConfig(time_steps=T_STEPS, restarts=3, seed=2, zeta_prior=hold_up_restart_0)
     runs = {}
     for workers in (1, 3):
-        events, progress = [], []
-        first.clear()
-        res = fit(ds, kin, cfg, callback=lambda ev: events.append((ev["stage"], ev["restart"], ev["iteration"], ev["loss"])),
-                  on_restart=lambda p: progress.append(p.restart_losses), workers=workers)
-        runs[workers] = res, events, progress
-    (a, ev_a, pr_a), (b, ev_b, pr_b) = runs[1], runs[3]
-    assert ev_b == ev_a and pr_b == pr_a and len(pr_a) == 3
-    assert [e[1] for e in ev_a if e[0] == "restart"] == sorted(e[1] for e in ev_a if e[0] == "restart")
+        calls = []
+        slept.clear()
+        res = fit(ds, kin, cfg, workers=workers,
+                  callback=lambda ev: calls.append((ev["stage"], ev["restart"], ev["iteration"], ev["loss"])),
+                  on_restart=lambda p: calls.append(("checkpoint", p.restarts_done, p.restart_losses)))
+        runs[workers] = res, calls
+    (a, calls_a), (b, calls_b) = runs[1], runs[3]
+    assert slept and calls_b == calls_a
+    assert [c[1] for c in calls_a if c[0] == "checkpoint"] == [1, 2, 3]
+    assert [c[1] for c in calls_a if c[0] == "restart"] == sorted(c[1] for c in calls_a if c[0] == "restart")
     assert a.restart_losses == b.restart_losses and a.best_restart == b.best_restart
     for x, y in ((a.model.mu, b.model.mu), (a.model.sigma_inv, b.model.sigma_inv), (a.model.tool, b.model.tool),
                  (a.model.env, b.model.env)):
         assert torch.equal(x, y)
-    with pytest.raises(ValueError, match="workers must be a whole number >= 1"):
-        fit(ds, kin, cfg, workers=0)
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="workers must be a whole number >= 1"):
+            fit(ds, kin, cfg, workers=bad)
 
 
-def test_an_error_in_a_restart_thread_ends_the_fit(synth, kin):
-    """An exception other than a diverged restart ends the fit: it is raised as it is, and the
-    events of the restarts that ran beside it are never delivered."""
+def test_an_error_in_a_restart_thread_ends_the_fit_and_stops_the_others(synth, kin, monkeypatch):
+    """An exception other than a diverged restart ends the fit: it is raised as it is, the
+    events of the restart that ran beside it are never delivered, and that restart stops at its
+    next EM iteration instead of running to its end."""
     ds, _ = synth
-    calls = []
+    cfg = FitConfig(time_steps=T_STEPS, restarts=2, seed=0)
+    whole = fit(ds, kin, cfg, workers=1).em_iterations[1]  # restart 1's iterations when it runs to its end
+    assert whole >= 4
+    e_steps = []
+    e_step = EMFitter.e_step
+
+    def counted(self, *args, **kw):
+        e_steps.append(1)
+        return e_step(self, *args, **kw)
+
+    monkeypatch.setattr(EMFitter, "e_step", counted)
+    seen = []
 
     def callback(ev):
-        calls.append(ev["restart"])
-        if ev["restart"] == 0 and ev["iteration"] == 1:
-            raise KeyError("the caller's callback failed")
+        seen.append(ev["restart"])
+        raise KeyError("the caller's callback failed")  # at restart 0's first iteration
 
     with pytest.raises(KeyError, match="the caller's callback failed"):
-        fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=6, seed=0), callback=callback, workers=2)
-    assert set(calls) == {0}  # later restarts' events were held, never delivered
+        fit(ds, kin, cfg, callback=callback, workers=2)
+    assert seen == [0]  # restart 1's events were held, never delivered
+    assert len(e_steps) < 1 + whole  # restart 1 stopped before its end
 
 
 def test_tool_search_starts_lbfgs_from_the_best_grid_point(synth, kin):

@@ -138,6 +138,10 @@ class FitConfig:
         demonstration spread a long phase over several steps, which the others share.
     solver : how the fit optimizes (``SolverSettings``): iteration limits and tolerances, the
         M-step's form, the tool point's starting search, CPU threads. Not what it fits.
+    zeta_prior, eta_prior : extra terms of the objective, ``zeta_prior(tool, w)`` and
+        ``eta_prior(mu, sigma_inv)`` -> a scalar tensor (None: none). The restarts run in
+        threads (``fit(workers=)``), so they are called from several threads at once and must
+        not keep state between calls.
     """
 
     time_steps: int = 24

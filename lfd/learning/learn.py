@@ -124,7 +124,12 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
     workers : restarts run at once, each in its own thread (None: one per CPU this process may
         use, at most ``config.restarts``). The fit, its callbacks and its ``on_restart`` calls
         are the same for any number: each restart is computed alone, and the events of a
-        restart that runs ahead of an earlier one are held back until that one has finished.
+        restart that runs ahead of an earlier one are held back until that one has finished
+        and ``on_restart`` has been called for it. ``callback`` may be called from a worker
+        thread (never two at once); ``config.zeta_prior`` and ``eta_prior`` are called from
+        several at once, so they must not keep state between calls. An exception in a restart
+        (other than a diverged one, which is dropped) is raised once the earlier restarts have
+        finished; the restarts still running then stop at their next EM iteration.
 
     Raises
     ------
@@ -143,7 +148,8 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
             why = f"has {resume.restarts_done} restarts, more than the {cfg.restarts} asked for"
         if why:
             raise CheckpointError(f"{where}: cannot resume, the checkpoint was {why}")
-    if workers is not None and (isinstance(workers, bool) or int(workers) != workers or workers < 1):
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer))
+                                or workers < 1):
         raise ValueError(f"workers must be a whole number >= 1 or None, got {workers!r}")
     threads = torch.get_num_threads()
     if cfg.solver.num_threads is not None:
@@ -285,7 +291,8 @@ class _OrderedEvents:
 
 
 def restart_workers(workers: int | None, restarts: int) -> int:
-    """Threads for ``restarts`` restarts: ``workers``, or one per CPU this process may use."""
+    """Threads for ``restarts`` restarts (at least 1): ``workers``, or one per CPU this process
+    may use, at most ``restarts``."""
     if workers is None:
         workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return max(1, min(int(workers), restarts))
@@ -334,9 +341,9 @@ def _run_restarts(demoset, data: FitData, cfg: FitConfig, fixed, callback, dtype
                 log.iters.append(len(hist))
                 if log.best is None or hist[-1] < log.losses[log.best[0]]:
                     log.best = (r, state)
-            events.advance(r + 1)
-            if on_restart is not None:
+            if on_restart is not None:  # before the next restart's events, as one at a time
                 on_restart(_progress(cfg, fingerprint, log.histories, log.losses, log.iters, log.notes, log.best))
+            events.advance(r + 1)
     except BaseException:
         events.stop.set()  # the running restarts end at their next iteration
         raise
