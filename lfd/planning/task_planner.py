@@ -90,9 +90,10 @@ class TaskPlanner:
         self._landmarks: torch.Tensor | None = None  # (Z, 4, 4) kept landmarks, model order
         self._sensed: dict[str, np.ndarray] = {}  # every sensed landmark's last position (3,)
         self.growth_pending = False
+        self._n_bias = int(round(settings.bias_fraction * self.n_vertices))  # the build's biased vertices
         regrow = settings.regrow_vertices
         self._growth = BiasedGrowth(model, settings, self._gen, settings.max_vertices or 3 * self.n_vertices,
-                                    round(settings.bias_fraction * self.n_vertices) if regrow is None else regrow)
+                                    self._n_bias if regrow is None else regrow)
         self.roadmap: Roadmap | None = None
         self.planner: ClosedLoopPlanner | None = None
         self._missing: str | None = None
@@ -201,7 +202,7 @@ class TaskPlanner:
 
     def _build(self) -> None:
         s = self.settings
-        n_bias = int(round(s.bias_fraction * self.n_vertices))
+        n_bias = self._n_bias
         self.roadmap = Roadmap.build(self._free_space_samples, max(2, self.n_vertices - n_bias), self.collision_fn,
                                      self.segment_fn, batch_collision_fn=self.batch_collision_fn,
                                      settings=s.roadmap)
