@@ -221,18 +221,27 @@ def test_batched_costs_equal_costs_computed_edge_by_edge(toy):
         np.testing.assert_allclose(W[e], tau / DT * (tc[:, 0] + mean), rtol=1e-10)
 
 
-def test_cost_to_go_is_the_exact_distance_to_the_end(toy):
+@pytest.mark.parametrize("t_min, blocked_every", [(0, 0), (1, 7)])
+def test_cost_to_go_is_the_exact_distance_to_the_end(toy, t_min, blocked_every):
     """``cost_to_go`` (one scipy Dijkstra per step) equals networkx's Dijkstra from every node
-    to the end of the task on the same graph (no edge blocked: the search's optimistic graph)."""
+    to the end of the task on the same graph: with no edge blocked (the search's optimistic
+    graph), and with every 7th edge blocked and the search starting at step 1 (the cost-to-go
+    of the steps before it left at 0)."""
     means = arc_means(T2)
     p = make_planner(toy, means)
     ell, W = p.edges.costs()
     E = len(p.edges.ends)
-    g = SearchGraph(graph=toy.graph, ends=p.edges.ends, src=np.zeros(0, int), dst=np.zeros(0, int), W=W, ell=ell)
+    blocked = np.zeros(E, dtype=bool)
+    if blocked_every:
+        blocked[::blocked_every] = True
+    g = SearchGraph(graph=toy.graph, ends=p.edges.ends, src=np.zeros(0, int), dst=np.zeros(0, int), W=W, ell=ell,
+                    blocked=blocked)
     trans = transition_table(trans_table(T2), (0, 1, 2))
-    H = cost_to_go(g, trans)
+    H = cost_to_go(g, trans, t_min)
     ref = nx.DiGraph()
     for e, (u, w) in enumerate(p.edges.ends):
+        if blocked[e]:
+            continue
         for t in range(T2):
             ref.add_edge((u, t), (w, t), weight=W[e, t])
             ref.add_edge((w, t), (u, t), weight=W[e, t])
@@ -243,10 +252,16 @@ def test_cost_to_go_is_the_exact_distance_to_the_end(toy):
                     ref.add_edge((v, t), (v, t + k), weight=trans[t, k] + ell[v, t + k])
         ref.add_edge((v, T2 - 1), "end", weight=0.0)
     to_go = nx.single_source_dijkstra_path_length(ref.reverse(copy=False), "end")
-    got = np.array([H[v, t] for (v, t) in (n for n in to_go if n != "end")])
-    want = np.array([d for n, d in to_go.items() if n != "end"])
+    nodes = [n for n in to_go if n != "end" and n[1] >= t_min]
+    got = np.array([H[v, t] for (v, t) in nodes])
+    want = np.array([to_go[n] for n in nodes])
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
-    assert E > 0 and np.all(H[:, -1] == 0.0)
+    assert E > 0 and len(nodes) == toy.n * (T2 - t_min) and np.all(H[:, -1] == 0.0)
+    assert np.all(H[:, :t_min] == 0.0)
+    if blocked_every:  # the blocked edges made some way longer
+        free = cost_to_go(SearchGraph(graph=toy.graph, ends=p.edges.ends, src=np.zeros(0, int),
+                                      dst=np.zeros(0, int), W=W, ell=ell), trans, t_min)
+        assert np.all(H >= free - 1e-9) and np.any(H > free + 1e-6)
 
 
 def test_an_object_that_moved_is_checked_again_and_the_plan_equals_a_fresh_one():

@@ -135,18 +135,19 @@ def cost_to_go(g: SearchGraph, trans: np.ndarray, t_min: int = 0) -> np.ndarray:
     N, T = g.N, g.T
     offsets = [k for k in range(1, trans.shape[1])]
     H = np.zeros((N, T))
-    # reversed graph (edge a -> b becomes b -> a) plus a super source S = N with S -> v at term(v)
+    # reversed graph (edge a -> b becomes b -> a) plus a super source S = N with S -> v at term(v),
+    # as one CSR matrix whose structure is the same at every step: only its entries are rewritten
     src, dst, row = g.arrays()
     rows = np.concatenate([dst, np.full(N, N)])
     cols = np.concatenate([src, np.arange(N)])
-    order = np.argsort(rows, kind="stable")
+    order = np.argsort(rows, kind="stable")  # the spatial edges (rows < N) first, the super source last
     indptr = np.searchsorted(rows[order], np.arange(N + 2))
-    indices = cols[order]
     n_sp = len(src)
-    sel_edge = order < n_sp  # entries that are spatial edges (the rest: the super source)
-    edge_rows = row[order[sel_edge]]
-    blocked = g.blocked[edge_rows]
-    data = np.empty(len(order))
+    edge_rows = row[order[:n_sp]]  # (n_sp,) the cost row of each spatial entry
+    blocked = np.flatnonzero(g.blocked[edge_rows])
+    M = sp.csr_matrix((np.empty(n_sp + N), cols[order], indptr), shape=(N + 1, N + 1))
+    data = M.data  # (n_sp + N,) written in place, step by step
+    W_t = np.ascontiguousarray(g.W[:, t_min:].T)  # (T - t_min, E'): a step's costs side by side
     for t in range(T - 1, t_min - 1, -1):
         if t == T - 1:
             term = np.zeros(N)
@@ -158,13 +159,13 @@ def cost_to_go(g: SearchGraph, trans: np.ndarray, t_min: int = 0) -> np.ndarray:
             for k in offsets:
                 if t + k < T and np.isfinite(trans[t, k]):
                     term = np.minimum(term, trans[t, k] + g.ell[:, t + k] + H[:, t + k])
-        w = g.W[edge_rows, t]
+        w = W_t[t - t_min][edge_rows]
         if n_sp == 0 or not np.all(np.isfinite(w)):  # staying in step t is forbidden: no motion
             H[:, t] = term
             continue
-        data[sel_edge] = np.where(blocked, _BIG, w)
-        data[~sel_edge] = np.minimum(term, _BIG) + 1.0  # > 0, so that no entry reads as absent
-        M = sp.csr_matrix((data, indices, indptr), shape=(N + 1, N + 1))
+        w[blocked] = _BIG
+        data[:n_sp] = w
+        data[n_sp:] = np.minimum(term, _BIG) + 1.0  # > 0, so that no entry reads as absent
         dist = dijkstra(M, directed=True, indices=N)[:N] - 1.0
         H[:, t] = np.where(dist >= _BIG * 0.5, np.inf, dist)
     return H
