@@ -12,7 +12,7 @@
 
   (``stay[t] = -log p(t | t)`` in the step cost's units, the mean by the trapezoid rule over the
   ``m + 1`` nodes), computed for all edges and steps in a few array operations when first asked
-  for after new landmarks;
+  for after new landmarks, and for the new ones only after the roadmap grew;
 * its collision state: ``UNKNOWN`` (not checked, or checked before a nearby object moved),
   ``FREE`` or ``BLOCKED``, and for a blocked edge a *witness* when one is known: the
   configuration found colliding (a quadrature node of the construction's or the search's point
@@ -151,7 +151,7 @@ class EdgeStore:
         self._epoch = np.empty(0, dtype=np.int64)  # (E,) regions an edge's state and screen account for
         self._landmarks = None
         self._costs: tuple[np.ndarray, np.ndarray] | None = None
-        self.counters = {"cost_updates": 0, "segment_checks": 0, "blocked": 0, "invalidated": 0,
+        self.counters = {"cost_updates": 0, "costed_edges": 0, "segment_checks": 0, "blocked": 0, "invalidated": 0,
                          "screened_points": 0, "witness_checks": 0}
         self.sync()
 
@@ -172,7 +172,6 @@ class EdgeStore:
             if self.keypoint_fn is not None:
                 k = np.asarray(self.keypoint_fn(V[n0:]), dtype=float)
                 self._vkey = k if n0 == 0 else np.concatenate([self._vkey, k])
-            self._costs = None
         ends = rm.edge_array()
         e0 = len(self.ends)
         if len(ends) == e0:
@@ -212,7 +211,6 @@ class EdgeStore:
         self.ends, self.tau, self.m = np.concatenate([self.ends, new]), np.concatenate([self.tau, tau]), \
             np.concatenate([self.m, m])
         self.state = np.concatenate([self.state, state])
-        self._costs = None
 
     def _half_spacing(self, ends: np.ndarray, m: np.ndarray) -> np.ndarray:
         """``(E',)`` half the largest keypoint displacement between consecutive quadrature nodes
@@ -417,24 +415,42 @@ class EdgeStore:
 
     # ------------------------------------------------------------------ costs
     def costs(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(ell (n, T), W (E, T))`` for the current landmarks, computed now if stale.
-        May raise ``LookupError`` or ``lfd.planning.stepcost.CostError`` from the step cost."""
+        """``(ell (n, T), W (E, T))`` for the current landmarks, computed now if stale: all of them
+        after new landmarks, only the new vertices' and edges' after the roadmap grew (a growth
+        round's re-plan otherwise costed the whole roadmap again). May raise ``LookupError`` or
+        ``lfd.planning.stepcost.CostError`` from the step cost."""
+        if self._landmarks is None:
+            raise LookupError("no landmarks yet: call invalidate(landmarks=...) first")
         if self._costs is None:
-            if self._landmarks is None:
-                raise LookupError("no landmarks yet: call invalidate(landmarks=...) first")
-            ell = self.step_cost.evaluate(self._vparts, self._landmarks)
-            if self._summed is not None:
-                sums = (self._summed.evaluate_sums(self._sparts, self._landmarks) if self._sparts is not None
-                        else np.zeros((0, self.T)))
-            else:
-                ell_in = (self.step_cost.evaluate(self._pparts, self._landmarks) if self._n_points
-                          else np.zeros((0, self.T)))
-                sums = interior_sums(ell_in, self._first, self.m)
-            u, w = self.ends[:, 0], self.ends[:, 1]
-            W = trapezoid_costs(ell[u], ell[w], sums, self.m, self.tau, self.stay, self.dt)
-            self._costs = (ell, W)
-            self.counters["cost_updates"] += 1
+            self._costs = self._evaluate(0, 0, np.zeros((0, self.T)))
+        elif len(self._costs[1]) < len(self.ends) or len(self._costs[0]) < self.n_vertices:
+            ell, W = self._costs
+            ell, W_new = self._evaluate(len(ell), len(W), ell)
+            self._costs = (ell, np.concatenate([W, W_new]))
         return self._costs
+
+    def _evaluate(self, v0: int, e0: int, ell_old: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Step costs of the vertices from ``v0`` on, appended to ``ell_old (v0, T)``, and the
+        costs ``(E - e0, T)`` of the edges from ``e0`` on: ``(ell (n, T), W (E - e0, T))``."""
+        def rows(parts, start):  # the parts of rows ``start..`` (every part is row-aligned)
+            return tuple(p[start:] for p in parts)
+
+        ell = ell_old
+        if self.n_vertices > v0:
+            ell = np.concatenate([ell_old, self.step_cost.evaluate(rows(self._vparts, v0), self._landmarks)])
+        m = self.m[e0:]
+        if self._summed is not None:
+            sums = (self._summed.evaluate_sums(rows(self._sparts, e0), self._landmarks)
+                    if self._sparts is not None and len(m) else np.zeros((len(m), self.T)))
+        else:
+            p0 = int(self._first[e0]) if len(m) else self._n_points  # the first new edge's first interior row
+            ell_in = (self.step_cost.evaluate(rows(self._pparts, p0), self._landmarks) if self._n_points > p0
+                      else np.zeros((0, self.T)))
+            sums = interior_sums(ell_in, self._first[e0:] - p0, m)
+        u, w = self.ends[e0:, 0], self.ends[e0:, 1]
+        self.counters["cost_updates"] += 1
+        self.counters["costed_edges"] += len(m)
+        return ell, trapezoid_costs(ell[u], ell[w], sums, m, self.tau[e0:], self.stay, self.dt)
 
     def segment_costs(self, q: np.ndarray, Qb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Costs of motions not in the roadmap, from ``q (d,)`` to each of ``Qb (k, d)``, for the

@@ -222,10 +222,9 @@ class ClosedLoopPlanner:
         t0 = time.perf_counter()
         try:
             E.sync()
-            updates = E.counters["cost_updates"]
+            costed = E.counters["costed_edges"]
             ell, W = E.costs()
-            if E.counters["cost_updates"] > updates:
-                stats["edges_evaluated"] = len(W)
+            stats["edges_evaluated"] = E.counters["costed_edges"] - costed
             temps = self._temporaries(q, g)
         except LookupError as e:
             return self._result("missing_landmark", tic, f"missing landmark: {e}")
