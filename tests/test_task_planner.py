@@ -470,12 +470,33 @@ def test_growth_a_round_at_a_time_equals_growth_at_once(kin):
         planner.grow(rounds=0)
 
 
-@pytest.mark.parametrize("blocks", [True, False])
-def test_a_grown_roadmap_costs_its_new_edges_alone_and_equals_a_full_costing(kin, blocks):
-    """After the roadmap grows (new vertices, their nearest-neighbour and chain edges), the edge
-    store costs only the new vertices and edges, summed or node by node, and the costs equal a
+class _RowCounting(_CountingSums):
+    """Counts the rows each evaluation is given: configurations, and runs when it sums."""
+
+    def __init__(self, cost, sums: bool):
+        super().__init__(cost)
+        self.rows = 0
+        self.sums = sums
+
+    def evaluate(self, parts, landmarks):
+        self.rows += len(parts[0])
+        return super().evaluate(parts, landmarks)
+
+    def prepare_sums(self, Q, counts):
+        return super().prepare_sums(Q, counts) if self.sums else None
+
+    def evaluate_sums(self, parts, landmarks):
+        self.rows += len(parts[0])
+        return super().evaluate_sums(parts, landmarks)
+
+
+@pytest.mark.parametrize("sums", [True, False])
+def test_a_grown_roadmap_costs_its_new_edges_alone_and_equals_a_full_costing(kin, sums):
+    """After the roadmap grows (new vertices with their nearest-neighbour and chain edges, then
+    edges alone between old vertices), the edge store evaluates only the new vertices and the
+    new edges (their summed runs, or their interior nodes one by one), and the costs equal a
     fresh store's over the whole grown roadmap; new landmarks cost every edge again."""
-    model = _random_cov_model(kin, "attitude", blocks)
+    model = _random_cov_model(kin, "attitude", True)
     names = ["cup", "bowl"]
     poses = np.stack([_pose([0.0, 0.0, 0.8], [0.6, -0.2, 0.0]), _pose([0.3, -0.2, 0.1], [0.7, 0.4, -0.1])])
     planner = TaskPlanner(model, lambda q: False, lambda a, b: False,
@@ -483,28 +504,38 @@ def test_a_grown_roadmap_costs_its_new_edges_alone_and_equals_a_full_costing(kin
     planner.update_landmarks(names, poses)
     landmarks = model.select_landmarks(names, poses)
     rm, E0 = planner.roadmap, planner.planner.edges
-    counted = _CountingSums(E0.step_cost) if blocks else _NodeByNode(E0.step_cost)
+    counted = _RowCounting(E0.step_cost, sums)
     store = EdgeStore(rm, counted, E0.stay, E0.dt, E0.vmax, E0.quad_dt)
     store.invalidate(landmarks=landmarks)
     ell0, W0 = store.costs()
-    n0, e0 = rm.n, len(store.ends)
-    ids = rm.add_vertices(kin.sample_uniform(25, generator=torch.Generator().manual_seed(8)).numpy())
-    rm.add_edges(np.stack([ids[:-1], ids[1:]], 1))  # a chain, as a growth round adds
-    store.sync()
-    before, calls = dict(store.counters), getattr(counted, "calls", 0)
-    ell, W = store.costs()
-    assert rm.n == n0 + 25 and len(W) > e0 + 25
-    assert store.counters["costed_edges"] - before["costed_edges"] == len(W) - e0  # the new edges alone
-    assert getattr(counted, "calls", 0) == calls + (1 if blocks else 0)
-    np.testing.assert_array_equal(ell[:n0], ell0)
-    np.testing.assert_array_equal(W[:e0], W0)  # the old edges' costs kept as they were
-    fresh = EdgeStore(rm, counted, E0.stay, E0.dt, E0.vmax, E0.quad_dt)
-    fresh.invalidate(landmarks=landmarks)
-    ell_f, W_f = fresh.costs()
-    np.testing.assert_allclose(ell, ell_f, rtol=1e-12, atol=1e-12 * np.abs(ell_f).max())
-    finite = np.isfinite(W_f)
-    assert np.array_equal(finite, np.isfinite(W)) and finite.any()
-    np.testing.assert_allclose(W[finite], W_f[finite], rtol=1e-10, atol=1e-10 * np.abs(W_f[finite]).max())
+    for grow in ("vertices", "edges"):
+        n0, e0 = rm.n, len(store.ends)
+        if grow == "vertices":
+            ids = rm.add_vertices(kin.sample_uniform(25, generator=torch.Generator().manual_seed(8)).numpy())
+            rm.add_edges(np.stack([ids[:-1], ids[1:]], 1))  # a chain, as a growth round adds
+            near = rm.add_vertices(rm.vertices[:5] + 1e-4)  # each joined to its neighbour by one sub-interval
+            rm.add_edges(np.stack([np.arange(5), near], 1))
+        else:  # edges alone, between vertices the store has costed
+            assert rm.add_edges(np.stack([np.arange(40), rm.n - 1 - np.arange(40)], 1)) > 20
+        store.sync()
+        new_edges = np.arange(e0, len(store.ends))
+        assert len(new_edges) > 10 and (store.m[new_edges] > 1).any()
+        assert (store.m[new_edges] == 1).any() == (grow == "vertices")  # edges without interior nodes too
+        costed, rows = store.counters["costed_edges"], counted.rows
+        ell, W = store.costs()
+        assert store.counters["costed_edges"] - costed == len(new_edges)  # the new edges alone
+        interior = int((store.m[new_edges] - 1).sum())
+        assert counted.rows - rows == (rm.n - n0) + (len(new_edges) if sums else interior)
+        np.testing.assert_array_equal(ell[:n0], ell0)
+        np.testing.assert_array_equal(W[:e0], W0)  # the old edges' costs kept as they were
+        fresh = EdgeStore(rm, counted, E0.stay, E0.dt, E0.vmax, E0.quad_dt)
+        fresh.invalidate(landmarks=landmarks)
+        ell_f, W_f = fresh.costs()
+        np.testing.assert_allclose(ell, ell_f, rtol=1e-12, atol=1e-12 * np.abs(ell_f).max())
+        finite = np.isfinite(W_f)
+        assert np.array_equal(finite, np.isfinite(W)) and finite[e0:].any()
+        np.testing.assert_allclose(W[finite], W_f[finite], rtol=1e-10, atol=1e-10 * np.abs(W_f[finite]).max())
+        ell0, W0 = ell, W
     moved = poses.copy()
     moved[1] = _pose([0.0, 0.5, -0.2], [0.5, 0.1, 0.2])
     store.invalidate(landmarks=model.select_landmarks(names, moved))

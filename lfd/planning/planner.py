@@ -6,7 +6,8 @@ Edge knowledge lives in one ``lfd.planning.edgestore.EdgeStore``: new sensed lan
 batch; an object that moved (``object_moved``) makes the collision state of the edges near
 it unknown again. A plan:
 
-1. costs every edge and vertex for the current landmarks, if stale (``EdgeStore.costs``), and the
+1. costs every edge and vertex for the current landmarks, if stale (``EdgeStore.costs``; after
+   the roadmap grew, only the new ones), and the
    edges joining the robot's configuration (and a goal configuration) to their ``connect_k``
    nearest vertices;
 2. computes the exact cost-to-go of every product node with the edges not known to collide
