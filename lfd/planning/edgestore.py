@@ -151,7 +151,7 @@ class EdgeStore:
         self._epoch = np.empty(0, dtype=np.int64)  # (E,) regions an edge's state and screen account for
         self._landmarks = None
         self._costs: tuple[np.ndarray, np.ndarray] | None = None
-        self.counters = {"cost_updates": 0, "costed_edges": 0, "segment_checks": 0, "blocked": 0, "invalidated": 0,
+        self.counters = {"costed_edges": 0, "segment_checks": 0, "blocked": 0, "invalidated": 0,
                          "screened_points": 0, "witness_checks": 0}
         self.sync()
 
@@ -448,7 +448,6 @@ class EdgeStore:
                       else np.zeros((0, self.T)))
             sums = interior_sums(ell_in, self._first[e0:] - p0, m)
         u, w = self.ends[e0:, 0], self.ends[e0:, 1]
-        self.counters["cost_updates"] += 1
         self.counters["costed_edges"] += len(m)
         return ell, trapezoid_costs(ell[u], ell[w], sums, m, self.tau[e0:], self.stay, self.dt)
 
