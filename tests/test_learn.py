@@ -449,3 +449,38 @@ def test_pruning_is_repeated_until_no_kept_landmark_weighs_under_the_threshold(k
     assert res.env_before_pruning["lm2"] >= thr and "lm2" not in res.kept_landmarks
     assert len(res.loss_history) >= 2 + 2  # two restarts, then at least two refits
     assert "bowl" in res.kept_landmarks and np.abs(res.model.env.numpy()).min() >= thr
+
+
+def test_final_gaussians_couple_the_tool_point_and_the_attitude_and_equal_each_steps_sample_covariance(synth, kin):
+    """With the 'block' covariance and the attitude, zeta is learned with each group its own block
+    but the model's Gaussians keep the tool point and the attitude in one block (how the tool
+    point's place varies with the gripper's attitude): each step's covariance is the floored
+    sample covariance of its observations, computed here one step at a time; the joints stay apart."""
+    ds, _ = synth
+    cfg = FitConfig(time_steps=T_STEPS, features="attitude", restarts=1, seed=0)
+    res = fit(ds, kin, cfg)
+    m = res.model
+    data = FitData(ds, kin, torch.float64, torch.device("cpu"), cfg.features)
+    fi = EMFitter(data, cfg, torch.float64, torch.device("cpu"), [ds.landmark_names.index(n) for n in m.landmark_names])
+    f, _ = data.features(m.tool, m.env, fi.T_lm)  # (N, F)
+    t_idx = np.concatenate(res.alignments)
+    Sigma = torch.linalg.inv(m.sigma_inv.transpose(1, 2) @ m.sigma_inv)  # (T, F, F)
+    d = 7
+    for t in range(T_STEPS):
+        x = f[torch.as_tensor(t_idx == t)]  # (n_t, F)
+        n = len(x)
+        c = x - x.mean(0)
+        S = c.T @ c + fi.nu * torch.diag(fi.floor ** 2)
+        ref = torch.zeros_like(S)
+        ref[:d, :d] = S[:d, :d]
+        ref[d:, d:] = S[d:, d:]
+        ref /= cfg.logdet_scale * n
+        assert torch.allclose(m.mu[t], x.mean(0), atol=1e-10)
+        assert torch.allclose(Sigma[t], ref, rtol=1e-7, atol=1e-12), t
+        assert torch.count_nonzero(m.sigma_inv[t, d:, :d]) == 0
+    # the tool point and the attitude do vary together in these demonstrations
+    cross = Sigma[:, d:d + 3, d + 3:].abs().amax()
+    assert cross > 1e-3 * Sigma[:, d:d + 3, d:d + 3].diagonal(dim1=1, dim2=2).amax()
+    # the paper's features have no attitude: their Gaussians are the EM's own (tool point apart from the joints)
+    paper = fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=1, seed=0)).model
+    assert torch.count_nonzero(paper.sigma_inv[:, d:, :d]) == 0

@@ -86,6 +86,23 @@ class FitData:
         return out
 
 
+class _Structure:
+    """Which covariance entries a per-step Gaussian keeps: ``mask (F, F)`` 0/1, the distinct kept
+    entries ``pairs`` (``i <= j``) and the fixed 0/1 map ``spread (m, F*F)`` of each onto
+    ``(i, j)`` and ``(j, i)``."""
+
+    def __init__(self, keep: torch.Tensor, dtype: torch.dtype):
+        F = keep.shape[0]
+        self.mask = keep.to(dtype)
+        i, j = torch.triu_indices(F, F, device=keep.device)
+        on = keep[i, j]
+        self.pairs = (i[on], j[on])
+        self.spread = torch.zeros(int(on.sum()), F * F, dtype=dtype, device=keep.device)  # (m, F*F)
+        rows = torch.arange(len(self.pairs[0]), device=keep.device)
+        self.spread[rows, self.pairs[0] * F + self.pairs[1]] = 1.0
+        self.spread[rows, self.pairs[1] * F + self.pairs[0]] = 1.0
+
+
 class EMFitter:
     def __init__(self, data: FitData, cfg, dtype, device, landmark_idx):
         self.data, self.cfg, self.dtype, self.device = data, cfg, dtype, device
@@ -101,18 +118,13 @@ class EMFitter:
         self.nu = float(cfg.floor_weight) if cfg.floor_weight is not None else data.N / self.T
         self.s = float(cfg.logdet_scale)
         self.dwell = dwell_limits(data.lengths, self.T, cfg.max_dwell)  # (M,) or None
-        if cfg.covariance == "block":  # each group its own block
-            self.mask = (group[:, None] == group[None, :]).to(dtype)
+        if cfg.covariance == "block":  # each group its own block while zeta is learned
+            self.cov = _Structure(group[:, None] == group[None, :], dtype)
+            # the model's final Gaussians: the tool point and the attitude in one block
+            task = group > 0
+            self.final_cov = _Structure((group[:, None] == group[None, :]) | (task[:, None] & task[None, :]), dtype)
         else:
-            self.mask = torch.ones(self.F, self.F, dtype=dtype, device=device)
-        # the distinct entries the covariance keeps, and the 0/1 map of each onto (i, j) and (j, i)
-        i, j = torch.triu_indices(self.F, self.F, device=device)
-        keep = self.mask[i, j] > 0
-        self._pairs = (i[keep], j[keep])
-        self._spread = torch.zeros(int(keep.sum()), self.F * self.F, dtype=dtype, device=device)  # (m, F*F)
-        rows = torch.arange(len(self._pairs[0]), device=device)
-        self._spread[rows, self._pairs[0] * self.F + self._pairs[1]] = 1.0
-        self._spread[rows, self._pairs[1] * self.F + self._pairs[0]] = 1.0
+            self.cov = self.final_cov = _Structure(torch.ones(self.F, self.F, dtype=torch.bool, device=device), dtype)
         if self.Z > 1:  # orthonormal basis of {u : sum u = 0}
             Q, _ = torch.linalg.qr(torch.cat([torch.ones(self.Z, 1, dtype=dtype, device=device),
                                               torch.eye(self.Z, dtype=dtype, device=device)], 1))
@@ -130,8 +142,9 @@ class EMFitter:
             out = out + self.cfg.zeta_prior(tool, w)
         return out
 
-    def closed_form(self, f, t_idx):
-        """Per-step ``mu (T, F)``, ``Sigma (T, F, F)``, counts ``n (T,)`` (eta-optimum for this zeta).
+    def closed_form(self, f, t_idx, cov: _Structure | None = None):
+        """Per-step ``mu (T, F)``, ``Sigma (T, F, F)``, counts ``n (T,)`` (eta-optimum for this zeta),
+        the covariance restricted to ``cov`` (default: the structure zeta is learned with).
 
         Sums over the observations of each step are products with the one-hot ``E (T, N)``
         (``index_add_`` on CPU is an order of magnitude slower, forward and backward); the
@@ -139,14 +152,15 @@ class EMFitter:
         entries the covariance keeps (``i <= j`` within its blocks), ``(N, m)``, spread into
         ``(T, F, F)`` by a fixed 0/1 matrix: 'block' with the attitude keeps 55 of 256 entries
         (this was most of the learning time when done as ``(T, N, F)`` masks)."""
+        cov = self.cov if cov is None else cov
         E = self._onehot(t_idx)
         n = E.sum(1)
         mu = (E @ f) / n.clamp(min=1)[:, None]
         c = f - mu[t_idx]  # (N, F)
-        i, j = self._pairs
-        S = ((E @ (c[:, i] * c[:, j])) @ self._spread).reshape(-1, self.F, self.F)  # (T, F, F)
+        i, j = cov.pairs
+        S = ((E @ (c[:, i] * c[:, j])) @ cov.spread).reshape(-1, self.F, self.F)  # (T, F, F)
         Psi = torch.diag(self.floor ** 2)
-        Sigma = (S + self.nu * Psi) / (self.s * n.clamp(min=1))[:, None, None] * self.mask
+        Sigma = (S + self.nu * Psi) / (self.s * n.clamp(min=1))[:, None, None] * cov.mask
         return mu, Sigma, n
 
     def _onehot(self, t_idx):
@@ -161,10 +175,13 @@ class EMFitter:
         logdet = 2 * torch.log(torch.diagonal(torch.linalg.cholesky(Sigma), dim1=-2, dim2=-1)).sum(-1)
         return (self.s * n * (logdet + self.F)).sum() + self.zeta_terms(tool, w, A)
 
-    def eta_from(self, tool, w, t_idx):
+    def eta_from(self, tool, w, t_idx, cov: _Structure | None = None):
+        """The eta-optimum ``mu (T, F)``, ``sigma_inv (T, F, F)`` for this zeta and alignment, the
+        covariance restricted to ``cov`` (default: the structure zeta is learned with; the
+        model's final Gaussians use ``self.final_cov``)."""
         with torch.no_grad():
             f, _ = self.data.features(tool, w, self.T_lm)
-            mu, Sigma, n = self.closed_form(f, t_idx)
+            mu, Sigma, n = self.closed_form(f, t_idx, cov)
             empty = (n == 0).nonzero().flatten().tolist()
             full = (n > 0).nonzero().flatten()
             for t in empty:  # a step every demonstration skipped: copy the nearest step with data
@@ -234,15 +251,16 @@ class EMFitter:
             tool, w, mu, sigma_inv = self.joint_polish(tool, w, mu, sigma_inv, t_idx, learn_tool, learn_env)
         return tool, w, mu, sigma_inv
 
-    def joint_polish(self, tool, w, mu, sigma_inv, t_idx, learn_tool, learn_env):
-        """LBFGS over zeta and eta together (eta as mu, log-diagonal, strictly-lower part)."""
+    def joint_polish(self, tool, w, mu, sigma_inv, t_idx, learn_tool, learn_env, cov: _Structure | None = None):
+        """LBFGS over zeta and eta together (eta as mu, log-diagonal, strictly-lower part; the
+        covariance restricted to ``cov``, default the structure zeta is learned with)."""
         N = self.data.N
         tool_p = tool.clone().requires_grad_(learn_tool)
         u = torch.zeros(self.B.shape[1], dtype=self.dtype, device=self.device, requires_grad=learn_env)
         mu_p = mu.clone().requires_grad_(True)
         logd = torch.log(torch.diagonal(sigma_inv, dim1=-2, dim2=-1)).clone().requires_grad_(True)
         low = torch.tril(sigma_inv, -1).clone().requires_grad_(True)
-        lmask = torch.tril(self.mask, -1)
+        lmask = torch.tril((self.cov if cov is None else cov).mask, -1)
         params = [mu_p, logd, low] + [p for p, on in ((tool_p, learn_tool), (u, learn_env and self.Z > 1)) if on]
 
         def build():
@@ -257,6 +275,23 @@ class EMFitter:
         self._lbfgs(params, closure, self.cfg.solver.joint_max_iter)
         w = (w + self.B @ u).detach()
         return tool_p.detach(), w - (w.sum() - 1) / self.Z, mu_p.detach(), build().detach()
+
+    def final_eta(self, tool, w, mu, sigma_inv, align):
+        """The model's Gaussians ``mu (T, F)``, ``sigma_inv (T, F, F)`` for the learned zeta and
+        alignment: with the 'block' covariance and the attitude, the tool point and the attitude in
+        one block (``final_cov``), so that the model says how the tool point's place varies with the
+        gripper's attitude; otherwise the EM's own ``mu``, ``sigma_inv``, unchanged.
+
+        zeta is learned with each its own block, where the tool point stays identifiable (in one
+        block with the gripper's axes its offset ``A R tool`` would be absorbed by the regression);
+        the alignment and the transitions stay those of the EM."""
+        if self.final_cov is self.cov:
+            return mu, sigma_inv
+        t_idx = torch.as_tensor(np.concatenate(align), device=self.device)
+        mu, sigma_inv = self.eta_from(tool, w, t_idx, self.final_cov)
+        if self.cfg.solver.m_step == "joint" or self.cfg.eta_prior is not None:
+            _, _, mu, sigma_inv = self.joint_polish(tool, w, mu, sigma_inv, t_idx, False, False, self.final_cov)
+        return mu, sigma_inv
 
     def band_mask(self, align):
         """``(M, S_max, T)`` True where a step is more than ``cfg.band`` steps from ``align``

@@ -418,6 +418,7 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
 
     state, kept, final_loss, fitter = _prune_and_refit(data, cfg, names, fixed[1], log, callback, dtype, device)
     tool, w, mu, sigma_inv, log_trans, align = state
+    mu, sigma_inv = fitter.final_eta(tool, w, mu, sigma_inv, align)  # the model's Gaussians
     finite = all(bool(torch.isfinite(x).all()) for x in (tool, w, mu, sigma_inv))
     if not (math.isfinite(final_loss) and finite and bool((log_trans < math.inf).all())):  # -inf: forbidden
         raise ValueError("the fit ended with non-finite values (NaN or inf) in the model; no model is returned")
