@@ -93,8 +93,8 @@ class FitConfig:
         with one task block, against 1.3 cm without the attitude). Once zeta is learned, the
         model says how the tool point's place varies with the attitude: a pour draw whose learned
         point sits at the spout, whose place beside the bowl turns with the direction the bowl
-        is faced from, poured 44% of 50 scenes with the three blocks and 95% of 20 with one task
-        block (docs/EXPERIMENTS.md, *A tool point whose place turns with the attitude*).
+        is faced from, poured 44% of 50 scenes with the three blocks and 90% of the same 50 with
+        one task block (docs/EXPERIMENTS.md, *A tool point whose place turns with the attitude*).
         With 'full', zeta enters the likelihood only through the task features' residual
         *given* the joints; as the tool point's world position is a smooth function of q,
         changing the tool point is largely absorbed by that regression and the tool point is
