@@ -113,8 +113,9 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     p.add_argument("--device", default="cpu", type=str, metavar="DEVICE",
                    help="torch device string to learn on: cpu, cuda, cuda:1, mps, ...")
     p.add_argument("--covariance", default=None, choices=("full", "block"),
-                   help="per-step covariance: block (joints, tool point and attitude independent of each other) or full, "
-                        "the paper's (default: block)")
+                   help="per-step covariance: block (joints, tool point and attitude independent of each other while the "
+                        "tool point is learned; the model's final Gaussians keep the tool point and the attitude in one "
+                        "block) or full, the paper's (default: block)")
     p.add_argument("--features", default=None, choices=FEATURE_SETS,
                    help="feature space: the paper's (joint angles, tool point in the virtual landmark frame) or "
                         "attitude (also the gripper's axes in that frame; docs/DESIGN.md) (default: the task.json's "

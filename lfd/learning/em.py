@@ -284,7 +284,8 @@ class EMFitter:
 
         zeta is learned with each its own block, where the tool point stays identifiable (in one
         block with the gripper's axes its offset ``A R tool`` would be absorbed by the regression);
-        the alignment and the transitions stay those of the EM."""
+        the alignment (the EM's last E-step's, ``align``) and the transitions stay those of the EM,
+        and ``FitResult.final_loss`` is the EM's loss."""
         if self.final_cov is self.cov:
             return mu, sigma_inv
         t_idx = torch.as_tensor(np.concatenate(align), device=self.device)
