@@ -37,8 +37,8 @@ roadmap, 160,000 quadrature nodes x 48 steps x 9, 0.5 GB). A landmark move recom
 @ (m, T)`` for the quadratic form over the ``m <= 3k (3k + 1) / 2`` distinct products ``x_i
 x_j`` that some step weighs (45 with the tool point and the attitude in one block, the learner's
 final Gaussians; 27 with the attitude in a block of its own; 6 for the tool point alone),
-accumulated into one ``(N, T)`` result: for the paper's features (``k = 1``) about 20 flops per configuration and step instead of FK plus an ``F x F`` triangular
-product.
+accumulated into one ``(N, T)`` result: for the paper's features (``k = 1``) about 20 flops per
+configuration and step instead of FK plus an ``F x F`` triangular product.
 
 Summed over a run of configurations (an edge's quadrature nodes), the cost needs only the run's
 moments of the world vectors ``y = vec(P) (3k,)``: with ``x = A y + b`` (``A`` ``k`` copies of
