@@ -76,15 +76,17 @@ def _pose(rotvec, position):
     return T
 
 
-def _random_cov_model(kin, feature_set: str, blocks: bool) -> TaskModel:
-    """``_model``'s means with random covariances, full or in the learner's blocks (joints, tool
-    point, attitude), two landmarks mixed 0.3 / 0.7, ``s = 0.6``."""
+def _random_cov_model(kin, feature_set: str, blocks: bool | str) -> TaskModel:
+    """``_model``'s means with random covariances, full (False), in the learner's blocks (True:
+    joints, tool point, attitude) or with one task block (``'task'``: joints apart, the tool
+    point and the attitude together, the learner's final Gaussians), two landmarks mixed 0.3 /
+    0.7, ``s = 0.6``."""
     base = _model(kin, feature_set=feature_set)
     T, F = base.mu.shape
     g = torch.Generator().manual_seed(5)
     L = torch.tril(0.3 * torch.randn(T, F, F, generator=g, dtype=torch.float64), -1)
     if blocks:  # joints, tool point, attitude: the learner's default 'block' covariance
-        group = torch.tensor([0] * 7 + [1] * 3 + [2] * 6)[:F]
+        group = torch.tensor([0] * 7 + [1] * 3 + [1 if blocks == "task" else 2] * 6)[:F]
         L = L * (group[:, None] == group[None, :])
     sigma_inv = L + torch.diag_embed(torch.exp(0.5 * torch.randn(T, F, generator=g, dtype=torch.float64)))
     return TaskModel(torch.tensor([0.02, -0.01, 0.1], dtype=torch.float64),
@@ -92,7 +94,8 @@ def _random_cov_model(kin, feature_set: str, blocks: bool) -> TaskModel:
                      ["bowl", "cup"], BAXTER_LEFT, logdet_scale=0.6, kin=kin, feature_set=feature_set)
 
 
-@pytest.mark.parametrize("feature_set,blocks", [("paper", False), ("attitude", False), ("attitude", True)])
+@pytest.mark.parametrize("feature_set,blocks", [("paper", False), ("attitude", False), ("attitude", True),
+                                                ("attitude", "task")])
 def test_step_cost_is_the_models_mahalanobis_term(kin, feature_set, blocks):
     """The planner's step cost is ``ModelStepCost``: per configuration and step, ``step_nll`` less
     ``s log|Sigma_t|`` (full or block covariances, s != 1, two rotated landmarks); prepared once,
@@ -155,7 +158,7 @@ class _CountingSums(_NodeByNode):
         return self.cost.evaluate_sums(parts, landmarks)
 
 
-@pytest.mark.parametrize("feature_set,blocks", [("paper", True), ("attitude", True), ("attitude", False)])
+@pytest.mark.parametrize("feature_set,blocks", [("paper", True), ("attitude", True), ("attitude", "task"), ("attitude", False)])
 def test_edge_costs_from_summed_parts_equal_the_sums_over_the_nodes(kin, feature_set, blocks):
     """``prepare_sums``/``evaluate_sums`` (an edge's cost from its nodes' moments, one evaluation
     per edge) give each run's summed ``evaluate``, before and after a landmark move, runs of 0

@@ -45,7 +45,9 @@ moments of the world vectors ``y = vec(P) (3k,)``: with ``x = A y + b`` (``A`` `
 ``K_virt^-1``'s linear part, ``b`` its translation on the tool point), ``sum x x^T = n xbar xbar^T
 + A C A^T`` (``xbar = A ybar + b``, ``C`` the run's centred scatter of ``y``) and ``sum x = n
 xbar``, so a landmark move costs one evaluation per edge, not per node (the pour's roadmap: 30,000
-edges against 160,000 nodes). With joints and task features coupled (``beta'`` per
+edges against 160,000 nodes). The scatter's share of the quadratic form is ``tr(G_t A C A^T) =
+tr(H_t C)`` with ``H_t = A^T G_t A``: rotating the ``T`` weights, not the ``E`` scatters, keeps
+``C``'s entries landmark-free (half the cost of a move with one task block). With joints and task features coupled (``beta'`` per
 configuration) the sums do not separate and ``prepare_sums`` returns None.
 
 ``CallableStepCost`` adapts any ``factory(landmarks) -> step_nll(Q: (N, d)) -> (N, T)`` (a toy
@@ -123,6 +125,15 @@ class ModelStepCost:
         i, j = i[used], j[used]
         self._pairs = (i, j)
         self._Gtri = (G[:, i, j] * torch.where(i == j, 1.0, 2.0).to(G)).T.contiguous()  # (m, T)
+        # the summed cost's scatter term tr(G_t A C A^T) = tr(H_t C), H_t = A^T G_t A: weighed over
+        # the products within the 3 x 3 blocks of world vectors that some step couples (A rotates
+        # each vector alone, so H_t is zero outside them); C's products are then landmark-free
+        k = G.shape[1] // 3
+        coupled3 = (G.reshape(self.T, k, 3, k, 3) != 0).any(4).any(2).any(0)  # (k, k)
+        ci, cj = torch.triu_indices(3 * k, 3 * k, device=G.device)
+        keep = coupled3[ci // 3, cj // 3]
+        self._G, self._cpairs = G, (ci[keep], cj[keep])
+        self._cweight = torch.where(ci[keep] == cj[keep], 1.0, 2.0).to(G)  # (m',)
         # joints and task features coupled (a full covariance): beta' per configuration; else one
         # (T, 3k) for all (block covariances: S_x^T S_q = 0)
         coupled = bool((self._S_x.transpose(1, 2) @ self._S_q != 0).any())
@@ -168,8 +179,9 @@ class ModelStepCost:
 
     def prepare_sums(self, Q, counts) -> tuple[torch.Tensor, ...] | None:
         """Moments of ``E`` runs of ``counts (E,)`` consecutive rows of ``Q (N, d)``: ``n (E,)``,
-        the mean ``ybar (E, 3k)`` and centred scatter ``C (E, 3k, 3k)`` of the world vectors, and
-        ``sum alpha' (E, T)``; None with joints and task features coupled (module docstring)."""
+        the mean ``ybar (E, 3k)`` of the world vectors, the entries ``(E, m')`` of their centred
+        scatter ``C`` that ``evaluate_sums`` weighs, and ``sum alpha' (E, T)``; None with joints and
+        task features coupled (module docstring)."""
         if self._beta_all is None:
             return None
         m = self.model
@@ -192,21 +204,24 @@ class ModelStepCost:
         for rows in batches:  # centred: the world vectors' mean is metres, their spread centimetres
             dy = y[rows] - ybar[owner[rows]]
             C.index_add_(0, owner[rows], dy[:, :, None] * dy[:, None, :])
-        return n, ybar, C, alpha_sum
+        ci, cj = self._cpairs
+        return n, ybar, C[:, ci, cj], alpha_sum
 
     def evaluate_sums(self, parts, landmarks) -> np.ndarray:
         """``(E, T)``: each run's Mahalanobis terms summed over its rows (``prepare_sums``'s parts)."""
-        n, ybar, C, alpha_sum = parts
+        n, ybar, Ctri, alpha_sum = parts
         if self._beta_all is None:
             raise ValueError("evaluate_sums: this model couples joints and task features; prepare_sums gave None")
         K = self.model.K_virt_inv(landmarks).detach()  # (4, 4)
         k = ybar.shape[1] // 3
         i, j = self._pairs
+        ci, cj = self._cpairs
         with torch.no_grad():
             xbar = task_features_tensor(ybar.reshape(-1, k, 3), K)  # (E, 3k)
             A = torch.block_diag(*[K[:3, :3]] * k)  # (3k, 3k)
-            XX = n[:, None, None] * xbar[:, :, None] * xbar[:, None, :] + A @ C @ A.T  # (E, 3k, 3k)
-            out = torch.addmm(alpha_sum, XX[:, i, j], self._Gtri)
+            H = A.T @ self._G @ A  # (T, 3k, 3k)
+            out = torch.addmm(alpha_sum, n[:, None] * xbar[:, i] * xbar[:, j], self._Gtri)  # n xbar^T G_t xbar
+            out.addmm_(Ctri, (H[:, ci, cj] * self._cweight).T)  # + tr(H_t C)
             out.addmm_(n[:, None] * xbar, self._beta_all, alpha=2.0)
             out.clamp_min_(0.0)
         return _checked(out, len(n), self.T, "ModelStepCost")
