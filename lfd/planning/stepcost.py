@@ -47,8 +47,9 @@ moments of the world vectors ``y = vec(P) (3k,)``: with ``x = A y + b`` (``A`` `
 xbar``, so a landmark move costs one evaluation per edge, not per node (the pour's roadmap: 30,000
 edges against 160,000 nodes). The scatter's share of the quadratic form is ``tr(G_t A C A^T) =
 tr(H_t C)`` with ``H_t = A^T G_t A``: rotating the ``T`` weights, not the ``E`` scatters, keeps
-``C``'s entries landmark-free (half the cost of a move with one task block). With joints and task features coupled (``beta'`` per
-configuration) the sums do not separate and ``prepare_sums`` returns None.
+``C``'s entries landmark-free (half the cost of a move with one task block). With joints and
+task features coupled (``beta'`` per configuration) the sums do not separate and
+``prepare_sums`` returns None.
 
 ``CallableStepCost`` adapts any ``factory(landmarks) -> step_nll(Q: (N, d)) -> (N, T)`` (a toy
 cost, a user's own model) with a known lower bound ``floor`` (one number or ``(T,)``) subtracted.
