@@ -46,7 +46,7 @@ moments of the world vectors ``y = vec(P) (3k,)``: with ``x = A y + b`` (``A`` `
 + A C A^T`` (``xbar = A ybar + b``, ``C`` the run's centred scatter of ``y``) and ``sum x = n
 xbar``, so a landmark move costs one evaluation per edge, not per node (the pour's roadmap: 30,000
 edges against 160,000 nodes). The scatter's share of the quadratic form is ``tr(G_t A C A^T) =
-tr(H_t C)`` with ``H_t = A^T G_t A``: rotating the ``T`` weights, not the ``E`` scatters, keeps
+tr(H_t C)`` with ``H_t = A^T G_t A``: transforming the ``T`` weights, not the ``E`` scatters, keeps
 ``C``'s entries landmark-free (half the cost of a move with one task block). With joints and
 task features coupled (``beta'`` per configuration) the sums do not separate and
 ``prepare_sums`` returns None.
@@ -127,7 +127,7 @@ class ModelStepCost:
         self._pairs = (i, j)
         self._Gtri = (G[:, i, j] * torch.where(i == j, 1.0, 2.0).to(G)).T.contiguous()  # (m, T)
         # the summed cost's scatter term tr(G_t A C A^T) = tr(H_t C), H_t = A^T G_t A: weighed over
-        # the products within the 3 x 3 blocks of world vectors that some step couples (A rotates
+        # the products within the 3 x 3 blocks of world vectors that some step couples (A maps
         # each vector alone, so H_t is zero outside them); C's products are then landmark-free
         k = G.shape[1] // 3
         coupled3 = (G.reshape(self.T, k, 3, k, 3) != 0).any(4).any(2).any(0)  # (k, k)
