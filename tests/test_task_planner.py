@@ -158,7 +158,8 @@ class _CountingSums(_NodeByNode):
         return self.cost.evaluate_sums(parts, landmarks)
 
 
-@pytest.mark.parametrize("feature_set,blocks", [("paper", True), ("attitude", True), ("attitude", "task"), ("attitude", False)])
+@pytest.mark.parametrize("feature_set,blocks", [("paper", True), ("attitude", True), ("attitude", "task"),
+                                                ("attitude", False)])
 def test_edge_costs_from_summed_parts_equal_the_sums_over_the_nodes(kin, feature_set, blocks):
     """``prepare_sums``/``evaluate_sums`` (an edge's cost from its nodes' moments, one evaluation
     per edge) give each run's summed ``evaluate``, before and after a landmark move, runs of 0

@@ -119,10 +119,11 @@ class EMFitter:
         self.s = float(cfg.logdet_scale)
         self.dwell = dwell_limits(data.lengths, self.T, cfg.max_dwell)  # (M,) or None
         if cfg.covariance == "block":  # each group its own block while zeta is learned
-            self.cov = self.final_cov = _Structure(group[:, None] == group[None, :], dtype)
+            same = group[:, None] == group[None, :]  # (F, F)
+            self.cov = self.final_cov = _Structure(same, dtype)
             if data.n_task > 3:  # the model's final Gaussians: the tool point and the attitude in one block
                 task = group > 0
-                self.final_cov = _Structure((group[:, None] == group[None, :]) | (task[:, None] & task[None, :]), dtype)
+                self.final_cov = _Structure(same | (task[:, None] & task[None, :]), dtype)
         else:
             self.cov = self.final_cov = _Structure(torch.ones(self.F, self.F, dtype=torch.bool, device=device), dtype)
         if self.Z > 1:  # orthonormal basis of {u : sum u = 0}

@@ -93,6 +93,12 @@ class SummedStepCost(StepCost, Protocol):
     def evaluate_sums(self, parts: tuple[torch.Tensor, ...], landmarks) -> np.ndarray: ...
 
 
+def _upper_weights(M: torch.Tensor, i: torch.Tensor, j: torch.Tensor) -> torch.Tensor:
+    """``(m, T)``: the entries ``(i, j)`` (``i <= j``) of symmetric ``M (T, n, n)``, off-diagonal ones
+    doubled, so that ``v_i v_j @ out`` is the quadratic form ``v^T M_t v`` (or ``tr(M_t V)``)."""
+    return (M[:, i, j] * torch.where(i == j, 1.0, 2.0).to(M)).T.contiguous()
+
+
 def _checked(out, n: int, T: int, name: str) -> np.ndarray:
     out = np.asarray(out.detach().cpu() if torch.is_tensor(out) else out, dtype=float)
     if out.shape != (n, T):
@@ -125,7 +131,7 @@ class ModelStepCost:
         used = (G[:, i, j] != 0).any(0)  # less those no step weighs (across a block covariance's blocks)
         i, j = i[used], j[used]
         self._pairs = (i, j)
-        self._Gtri = (G[:, i, j] * torch.where(i == j, 1.0, 2.0).to(G)).T.contiguous()  # (m, T)
+        self._Gtri = _upper_weights(G, i, j)  # (m, T)
         # the summed cost's scatter term tr(G_t A C A^T) = tr(H_t C), H_t = A^T G_t A: weighed over
         # the products within the 3 x 3 blocks of world vectors that some step couples (A maps
         # each vector alone, so H_t is zero outside them); C's products are then landmark-free
@@ -134,7 +140,6 @@ class ModelStepCost:
         ci, cj = torch.triu_indices(3 * k, 3 * k, device=G.device)
         keep = coupled3[ci // 3, cj // 3]
         self._G, self._cpairs = G, (ci[keep], cj[keep])
-        self._cweight = torch.where(ci[keep] == cj[keep], 1.0, 2.0).to(G)  # (m',)
         # joints and task features coupled (a full covariance): beta' per configuration; else one
         # (T, 3k) for all (block covariances: S_x^T S_q = 0)
         coupled = bool((self._S_x.transpose(1, 2) @ self._S_q != 0).any())
@@ -201,12 +206,12 @@ class ModelStepCost:
             y[rows] = P.reshape(len(P), n3)
             alpha_sum.index_add_(0, owner[rows], alpha)
         ybar = n.new_zeros(E, n3).index_add_(0, owner, y) / n.clamp_min(1.0)[:, None]
-        C = n.new_zeros(E, n3, n3)
+        ci, cj = self._cpairs
+        Ctri = n.new_zeros(E, len(ci))
         for rows in batches:  # centred: the world vectors' mean is metres, their spread centimetres
             dy = y[rows] - ybar[owner[rows]]
-            C.index_add_(0, owner[rows], dy[:, :, None] * dy[:, None, :])
-        ci, cj = self._cpairs
-        return n, ybar, C[:, ci, cj], alpha_sum
+            Ctri.index_add_(0, owner[rows], dy[:, ci] * dy[:, cj])
+        return n, ybar, Ctri, alpha_sum
 
     def evaluate_sums(self, parts, landmarks) -> np.ndarray:
         """``(E, T)``: each run's Mahalanobis terms summed over its rows (``prepare_sums``'s parts)."""
@@ -221,9 +226,10 @@ class ModelStepCost:
             xbar = task_features_tensor(ybar.reshape(-1, k, 3), K)  # (E, 3k)
             A = torch.block_diag(*[K[:3, :3]] * k)  # (3k, 3k)
             H = A.T @ self._G @ A  # (T, 3k, 3k)
-            out = torch.addmm(alpha_sum, n[:, None] * xbar[:, i] * xbar[:, j], self._Gtri)  # n xbar^T G_t xbar
-            out.addmm_(Ctri, (H[:, ci, cj] * self._cweight).T)  # + tr(H_t C)
-            out.addmm_(n[:, None] * xbar, self._beta_all, alpha=2.0)
+            nx = n[:, None] * xbar  # (E, 3k) sum x
+            out = torch.addmm(alpha_sum, nx[:, i] * xbar[:, j], self._Gtri)  # n xbar^T G_t xbar
+            out.addmm_(Ctri, _upper_weights(H, ci, cj))  # + tr(H_t C)
+            out.addmm_(nx, self._beta_all, alpha=2.0)
             out.clamp_min_(0.0)
         return _checked(out, len(n), self.T, "ModelStepCost")
 
