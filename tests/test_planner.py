@@ -556,3 +556,32 @@ def test_an_object_that_leaves_frees_only_the_edges_it_blocked():
     # some still collide at their witness (in the wall, near the box's place): no segment check
     assert 0 < reset.sum() - (E.counters["segment_checks"] - segments0) <= (reset & truth).sum()
     np.testing.assert_array_equal(E.check(np.arange(len(E.ends))), ~truth)
+
+
+def test_a_few_infinite_edge_costs_leave_the_rest_of_the_step_to_the_search(toy):
+    """A cost that is infinite in one region (a forbidden place) makes only the edges that touch it
+    infinite: the cost-to-go must still let the search move elsewhere at those steps, and the plan
+    equals Dijkstra on the full product graph (an estimate that took the whole step as immobile
+    because of one infinite edge overestimated, and A* reported no path or a worse one)."""
+    means = arc_means(T2)
+    forbidden = lambda Q: Q[:, 1] < -0.3  # noqa: E731  (the arc lies above it: y >= 0)
+
+    def factory(landmarks):
+        base = gaussian_factory()(landmarks)
+
+        def step_nll(Q):
+            out = base(Q)
+            return torch.where(forbidden(Q)[:, None], torch.inf, out)
+        return step_nll
+
+    cost = CallableStepCost(factory, T2, floor=2 * math.log(math.sqrt(2 * math.pi) * SIGMA))
+    p = ClosedLoopPlanner(toy, cost, trans_table(T2), DT, VMAX2, settings=PlannerSettings())
+    p.update_landmarks(means)
+    _, W = p.edges.costs()
+    assert np.isinf(W).any() and np.isfinite(W).any(axis=0).all()  # some edges at every step
+    q0 = np.array([-0.7, 0.05])
+    res = p.plan(q0, 0)
+    G = reference_graph(toy, factory(means), trans_table(T2), DT, VMAX2, q0, cost.floor[0])
+    want = nx.dijkstra_path_length(G, ("s", 0), "sink")
+    assert_path_valid(res)
+    assert res.cost == pytest.approx(want, rel=1e-9, abs=1e-9)

@@ -160,9 +160,11 @@ def cost_to_go(g: SearchGraph, trans: np.ndarray, t_min: int = 0) -> np.ndarray:
                 if t + k < T and np.isfinite(trans[t, k]):
                     term = np.minimum(term, trans[t, k] + g.ell[:, t + k] + H[:, t + k])
         w = W_t[t - t_min][edge_rows]
-        if n_sp == 0 or not np.all(np.isfinite(w)):  # staying in step t is forbidden: no motion
+        finite = np.isfinite(w)
+        if n_sp == 0 or not finite.any():  # staying in step t is forbidden: no motion
             H[:, t] = term
             continue
+        w[~finite] = _BIG  # an edge of infinite cost is as good as blocked; the others stay open
         w[blocked] = _BIG
         data[:n_sp] = w
         data[n_sp:] = np.minimum(term, _BIG) + 1.0  # > 0, so that no entry reads as absent
