@@ -488,3 +488,30 @@ def test_final_gaussians_couple_the_tool_point_and_the_attitude_and_equal_each_s
         fo = EMFitter(data_o, other, torch.float64, torch.device("cpu"), list(range(len(ds.landmark_names))))
         mu_o, si_o = fo.final_eta(m.tool, None, m.mu, m.sigma_inv, res.alignments)
         assert mu_o is m.mu and si_o is m.sigma_inv
+
+
+@pytest.mark.parametrize("feature_set,logdet_scale", [("paper", 1.0), ("attitude", 1.0), ("attitude", 2.0)])
+def test_volume_prior_cancels_a_blend_of_rotations_for_every_transformed_vector(synth, kin, feature_set,
+                                                                                 logdet_scale):
+    """Two landmarks at the origin, the second turned 90 degrees about z, in every demonstration:
+    weights (a, 1 - a) make ``A = a I + (1 - a) Rz^T``, which shrinks x and y by
+    ``|det A| = a^2 + (1 - a)^2``. The profiled loss with the volume prior must not see that shrink
+    (it equals the loss at the unblended frame, weights (1, 0)), whatever the number of vectors
+    the features transform (one point with 'paper', a point and two axes with 'attitude') and the
+    log-det scale; without the prior the blend would win by ``2 s k N log(1 / |det A|)``."""
+    from dataclasses import replace
+    ds, truth = synth
+    Rz = np.eye(4)
+    Rz[:2, :2] = [[0.0, -1.0], [1.0, 0.0]]
+    two = np.stack([np.eye(4), Rz])  # (2, 4, 4)
+    ds2 = replace(ds, demos=tuple(replace(d, landmarks=two.copy()) for d in ds.demos),
+                  landmark_names=("plain", "turned"), task=None)
+    cfg = FitConfig(time_steps=T_STEPS, features=feature_set, logdet_scale=logdet_scale,
+                    floor_joint=1e-9, floor_task=1e-9, floor_attitude=1e-9)
+    _, fi = _fitter(ds2, kin, cfg)
+    t_idx = torch.as_tensor(np.concatenate(truth.alignments))
+    tool = torch.tensor([0.01, 0.02, 0.1], dtype=torch.float64)
+    plain = float(fi.profiled(tool, torch.tensor([1.0, 0.0], dtype=torch.float64), t_idx))
+    for a in (0.5, 0.8):
+        blend = float(fi.profiled(tool, torch.tensor([a, 1.0 - a], dtype=torch.float64), t_idx))
+        assert blend == pytest.approx(plain, abs=1e-6 * abs(plain)), (a, blend - plain)

@@ -135,7 +135,8 @@ class EMFitter:
 
     # -- pieces of the objective
     def zeta_terms(self, tool, w, A):
-        out = volume_prior(A, self.data.lm_counts) if self.cfg.volume_prior else tool.new_zeros(())
+        out = (volume_prior(A, self.data.lm_counts, self.data.n_task // 3, self.s) if self.cfg.volume_prior
+               else tool.new_zeros(()))
         excess = tool.norm() - self.cfg.tool_radius  # the tool point stays within the tool's size
         if bool(excess > 0):  # (inside it the objective is the paper's, to the bit)
             out = out + TOOL_BOUND_WEIGHT * self.data.N * excess ** 2

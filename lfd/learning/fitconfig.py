@@ -110,7 +110,7 @@ class FitConfig:
         (lfd.learning.priors) of the joint angles (rad), the tool point (m) and the axes (unit
         vectors' components).
     floor_weight : its pseudo-observations ``nu``; None = mean observations per time step.
-    volume_prior : add ``-2 log|det A|`` per observation (lfd.learning.priors); zero for aligned frames.
+    volume_prior : add ``-2 s k log|det A|`` per observation (``k`` task 3-vectors; lfd.learning.priors); zero for aligned frames.
     tool_radius : metres from the gripper's origin the learned tool point may lie (the tool's
         size): beyond it a steep penalty holds it, so that a component the demonstrations cannot
         determine (the gripper never turned about that axis, ``lfd.learning.identify``) stays on

@@ -13,10 +13,13 @@ Every prior here is ``-2 log p`` up to a constant, so it adds directly to the lo
   of observations per step, which makes the floor ``Psi`` itself at an average step.
 * **Volume** (on zeta). ``K_virt^-1`` has linear part ``A = sum_i env_i R_i^T``; when the
   landmark rotations differ, a mixture can have ``|det A| << 1`` and shrink every task feature
-  (and its variance) towards zero, a degenerate optimum with loss -> -inf. The volume prior
-  ``-2 log|det A_m|`` per observation of demonstration ``m`` cancels exactly that change of
-  volume (it makes the likelihood that of the tool point in an undistorted frame). It is zero
-  when all landmark rotations agree (then ``A = (sum env) I = I``).
+  (and its variance) towards zero, a degenerate optimum with loss -> -inf. Each of the ``k``
+  3-vectors of the task features (the tool point; with 'attitude' also the gripper's two axes)
+  goes through ``A``, which scales their volume by ``|det A|^k`` and the loss's ``s log|Sigma|``
+  by ``2 s k log|det A|``; the volume prior ``-2 s k log|det A_m|`` per observation of
+  demonstration ``m`` cancels exactly that change (it makes the likelihood that of the task
+  vectors in an undistorted frame). It is zero when all landmark rotations agree (then
+  ``A = (sum env) I = I``).
 * **Transitions**: ``p(t + o_k | t)`` are the observed frequencies in the current alignments,
   each permitted one raised to at least ``floor`` and the row renormalized; offsets that would
   leave the last step are forbidden (``log p = -inf``).
@@ -37,10 +40,11 @@ def floor_prior(sigma_inv: torch.Tensor, floor: torch.Tensor, nu: float) -> torc
     return nu * ((sigma_inv * floor[None, None, :]) ** 2).sum()
 
 
-def volume_prior(A: torch.Tensor, counts: torch.Tensor) -> torch.Tensor:
-    """``-2 sum_r counts_r log|det A_r|``; ``A (R, 3, 3)`` per landmark row (a demonstration, or an
-    observation when landmarks were tracked), ``counts (R,)`` observations per row."""
-    return -2.0 * (counts * torch.linalg.slogdet(A)[1]).sum()
+def volume_prior(A: torch.Tensor, counts: torch.Tensor, vectors: int, logdet_scale: float) -> torch.Tensor:
+    """``-2 s k sum_r counts_r log|det A_r|``; ``A (R, 3, 3)`` per landmark row (a demonstration, or
+    an observation when landmarks were tracked), ``counts (R,)`` observations per row, ``k =
+    vectors`` the task features' 3-vectors, ``s = logdet_scale``."""
+    return -2.0 * logdet_scale * vectors * (counts * torch.linalg.slogdet(A)[1]).sum()
 
 
 def _permitted(time_steps: int, offsets) -> np.ndarray:
