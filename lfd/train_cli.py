@@ -254,7 +254,21 @@ def main(argv=None, prog: str = PROG) -> int:
                 return e.exit_status
     finally:
         if not keep and created is not None:  # no empty or half-written folder of ours is left
-            shutil.rmtree(created, ignore_errors=True)
+            _remove_created(Path(os.path.abspath(out)), created)
+
+
+def _remove_created(out: Path, created: Path) -> None:
+    """Remove ``out`` and then each folder above it up to ``created`` (the outermost one this run
+    made) while it is empty: what else was written there meanwhile (demonstrations generated
+    into ``runs/demos`` when ``created`` is ``runs``) stays."""
+    shutil.rmtree(out, ignore_errors=True)
+    for p in out.parents:
+        if not p.is_relative_to(created):
+            break
+        try:
+            p.rmdir()  # only when empty
+        except OSError:
+            break
 
 
 def cli() -> None:

@@ -28,8 +28,11 @@ the task's ``DEFAULT_PLACEMENT``).
 from __future__ import annotations
 
 import json
+import os
+import shutil
 import sys
 import time
+import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -293,6 +296,8 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
     """Generate ``n`` demonstrations of ``task`` into ``out_dir``; returns the ``.npz`` paths.
 
     Writes ``demo_000.npz`` ... (``lfd.learning.demos`` format), ``task.json`` and ``ground_truth.json``
+    into a hidden folder beside ``out_dir`` and moves them into it when all are drawn, so that an
+    interrupted or failed run leaves no partial set that would later pass for a whole one
     (``tool_point``, ``bowl_landmark``, ``task``, ``reference_points`` (the aim over the bowl, ``_aim_point``),
     the demonstrator's ``roll_deg``, plus the bowl positions and durations).
     ``task_point``: (3,) metres in the gripper frame, default ``TASK_POINTS[task]``.
@@ -308,9 +313,6 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
     RuntimeError
         when a demonstration cannot be drawn in ``MAX_ATTEMPTS_PER_DEMO`` attempts.
     """
-    from sim.collision import make_collision_fns
-    from sim.world import World
-
     spec = task_from_name(task)
     placement = DEFAULT_PLACEMENT.get(task, "uniform") if placement is None else placement
     if int(n) < 1:
@@ -324,7 +326,43 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
         raise ValueError(f"placement must be one of {PLACEMENTS}, got {placement!r}")
     roll_deg = check_roll(roll_deg)
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    work = out_dir.parent / f".{out_dir.name}.partial-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    work.mkdir()
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        t_all = time.time()
+        names = _generate_into(work, task, spec, int(n), seed, tool_point, progress, keep_attempts, placement,
+                               roll_deg)
+        paths = _publish(work, out_dir, names)
+        if progress:
+            print(f"{n} {task} demonstrations in {out_dir} ({time.time() - t_all:.0f} s)", flush=True)
+        return paths
+    finally:
+        torch.set_num_threads(threads)
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _publish(work: Path, out_dir: Path, names: list[str]) -> list[Path]:
+    """Move the finished set from ``work`` into ``out_dir``: one rename when ``out_dir`` is new or
+    empty, else file by file with ``task.json`` and ``ground_truth.json`` last."""
+    if out_dir.is_dir() and not any(out_dir.iterdir()):
+        out_dir.rmdir()
+    if not out_dir.exists():
+        work.rename(out_dir)
+    else:
+        for name in [*names, "task.json", "ground_truth.json"]:
+            os.replace(work / name, out_dir / name)
+    return [out_dir / name for name in names]
+
+
+def _generate_into(out_dir: Path, task: str, spec, n: int, seed: int, tool_point: np.ndarray, progress: bool,
+                   keep_attempts: list | None, placement: str, roll_deg: float | None) -> list[str]:
+    """``generate``'s drawing and writing into ``out_dir``; returns the demonstrations' file names."""
+    from sim.collision import make_collision_fns
+    from sim.world import World
+
     rng = np.random.default_rng(seed)
     # each bowl is kept through its attempts: redrawing one after a failure would bias the bowl
     # positions towards the easy part of the square. A stratified set is drawn up front; uniform
@@ -332,13 +370,11 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
     # gives the same uniform demonstrations
     all_bowls = bowl_positions(n, rng, placement) if placement == "stratified" else None  # (n, 2)
     kin = KinematicModel.from_spec(BAXTER_LEFT, dtype=torch.float64)
-    torch.set_num_threads(1)
     paths, bowls, durations, attempts_used, aims = [], [], [], [], []
-    t_all = time.time()
     with World(task) as world:
         fns = {"static": make_collision_fns(world, obstacles=False),
                "all": make_collision_fns(world, obstacles=True)}
-        for i in range(int(n)):
+        for i in range(n):
             t0 = time.time()
             bowl_xy = all_bowls[i] if all_bowls is not None else bowl_positions(1, rng, "uniform")[0]
             for attempt in range(1, MAX_ATTEMPTS_PER_DEMO + 1):
@@ -354,7 +390,7 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
             names, poses = world.sensed_landmarks()
             demo = Demonstration(q=a.q, dt=spec.dt, landmarks=poses, name=f"demo_{i:03d}")
             paths.append(save_demonstration(out_dir / f"demo_{i:03d}.npz", demo, BAXTER_LEFT.joint_names,
-                                            names, BAXTER_LEFT))
+                                            names, BAXTER_LEFT).name)
             bowls.append([float(v) for v in a.path.bowl_xy])
             aims.append(_aim_point(kin, a.q, a.path.bowl_xy))
             durations.append(a.path.duration)
@@ -372,8 +408,6 @@ def generate(task: str, out_dir, n: int = 11, seed: int = 0, task_point=None, pr
              "roll_deg": DUMP_NOMINAL[task][1] if roll_deg is None else roll_deg,
              "reference_points": {AIM_POINT: np.mean(aims, axis=0).round(5).tolist()}}
     (out_dir / "ground_truth.json").write_text(json.dumps(truth, indent=2) + "\n")
-    if progress:
-        print(f"{n} {task} demonstrations in {out_dir} ({time.time() - t_all:.0f} s)", flush=True)
     return paths
 
 

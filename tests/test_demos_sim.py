@@ -156,6 +156,48 @@ def test_bowl_is_kept_through_rejected_attempts(tmp_path, monkeypatch, task, ask
     assert truth["placement"] == placement and np.allclose(truth["bowl_xy"], bowls)
 
 
+@pytest.mark.parametrize("stop", [RuntimeError, KeyboardInterrupt])
+@pytest.mark.parametrize("existing", [False, True])
+def test_an_interrupted_set_leaves_no_demonstration_behind(tmp_path, monkeypatch, stop, existing):
+    """The demonstrator stops at the third of four demonstrations (it cannot draw it, or Ctrl-C):
+    nothing of the set reaches ``out`` (a later ``lfd-train`` would have learned from the first
+    two as if they were the set), no hidden work folder is left, and torch's thread count is the
+    caller's again. Finished, the set is all there, in a new folder or beside a file that was
+    already in it."""
+    import torch
+
+    import sim.demos as D
+    from lfd.learning.demos import demo_files
+    from sim.demo_paths import draw_path
+
+    calls, stops = [], [stop]
+
+    def fake(world, kin, fns, task, bowl_xy, tool_point, dt, rng, roll_deg=None):
+        calls.append(1)
+        if stops and len(calls) == 3:
+            raise stops[0]("stopped at the third")
+        path = draw_path(task, bowl_xy, np.r_[0.7, 0.8, 0.0, 0.3], dt, np.random.default_rng(99))
+        return D.DemoAttempt(np.tile(L.HOME_Q, (5, 1)), path, {}, "", 1.0)
+
+    monkeypatch.setattr(D, "_draw_one", fake)
+    out = tmp_path / "set"
+    if existing:
+        out.mkdir()
+        (out / "README.txt").write_text("mine")
+    threads = torch.get_num_threads()
+    with pytest.raises(stop):
+        D.generate("powder", out, n=4, seed=0, progress=False)
+    assert demo_files(out) == [] and not (out / "task.json").exists() and sorted(p.name for p in tmp_path.iterdir()) == (["set"] if existing else [])
+    assert torch.get_num_threads() == threads
+    calls.clear()
+    stops.clear()
+    paths = D.generate("powder", out, n=4, seed=0, progress=False)
+    assert [p.name for p in paths] == [f"demo_{i:03d}.npz" for i in range(4)] and demo_files(out) == paths
+    assert (out / "task.json").is_file() and (out / "ground_truth.json").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["set"]
+    assert (out / "README.txt").is_file() == existing
+
+
 @pytest.mark.parametrize("n", [1, 5, 11, 40])
 def test_stratified_bowls_put_one_bowl_in_each_strip(n):
     """A Latin hypercube: each of the n strips of the square in x, and each in y, holds one bowl."""

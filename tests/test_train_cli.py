@@ -509,6 +509,28 @@ def test_failed_train_leaves_no_out_folder_and_keeps_the_exception(synth_dir, tm
     assert (existing / "notes.txt").read_text() == "keep me"
 
 
+def test_failed_train_keeps_what_else_was_written_into_the_folders_it_created(synth_dir, tmp_path, monkeypatch):
+    """A first run in a fresh folder creates ``runs/``, generates the demonstrations into
+    ``runs/demos/...`` and fails in the fit: its ``--out`` goes, the demonstrations stay."""
+    import lfd.learning.learn
+    import train
+
+    demos = tmp_path / "runs" / "demos" / "powder"
+
+    def broken_fit(*args, **kwargs):
+        demos.mkdir(parents=True)  # what ensure_demos writes before the fit
+        (demos / "demo_000.npz").write_bytes(b"minutes of work")
+        raise RuntimeError("a bug in the fit")
+
+    monkeypatch.setattr(lfd.learning.learn, "fit", broken_fit)
+    out = tmp_path / "runs" / "powder" / "models" / "learn-learn"
+    with pytest.raises(RuntimeError, match="a bug in the fit"):
+        train.main(["--task", "powder", "--demos", str(synth_dir), "--restarts", "1", "--time-steps", "5",
+                    "--out", str(out)])
+    assert (demos / "demo_000.npz").read_bytes() == b"minutes of work"
+    assert not (tmp_path / "runs" / "powder").exists()
+
+
 def test_quiet_cwd_default_out_and_no_tensorboard(synth_dir, tmp_path, monkeypatch, capsys):
     """--quiet drops the per-iteration lines; without --out the model goes to ./runs/<task> in the
     current working directory; without TensorBoard one warning says so and the run goes on."""
