@@ -122,8 +122,9 @@ def main(argv=None) -> int:
     }
     (out / "soak.json").write_text(json.dumps(report, indent=2) + "\n")
     print(json.dumps(report, indent=2))
-    print(f"RSS growth {report['rss_growth']:+.1%} ({'under' if report['rss_growth'] < 0.10 else 'OVER'} 10%)")
-    return 0
+    under = report["rss_growth"] < 0.10
+    print(f"RSS growth {report['rss_growth']:+.1%} ({'under' if under else 'OVER'} 10%)")
+    return 0 if under else 1
 
 
 if __name__ == "__main__":

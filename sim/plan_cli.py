@@ -137,7 +137,8 @@ def parse(argv=None, prog: str = PROG):
 
 
 def main(argv=None, prog: str = PROG) -> int:
-    """``lfd-plan`` / ``python plan.py``: 0 when every plan succeeded, 1 when one failed; raises
+    """``lfd-plan`` / ``python plan.py``: 0 when every plan succeeded (with ``--execute``, and its
+    execution; with ``--evaluate``, when no run crashed: a failed scene is a result), 1 otherwise; raises
     ``UsageError`` (and the other ``lfd.cli.USER_ERRORS``) on bad input."""
     args = parse(argv, prog=prog)
     require_pybullet()
@@ -170,6 +171,11 @@ def main(argv=None, prog: str = PROG) -> int:
                            cells=payload["spread"] if len(payload["cells"]) > 1 else None))
         print(f"wall time {time.perf_counter() - tic:.0f} s, executor {settings.executor}")
         print(f"results: {out / 'results.json'}")
+        if payload["crashed"]:  # the table holds the others; these have no result at all
+            print(f"{prog}: {len(payload['crashed'])} run(s) crashed twice (their errors: 'crashed' in "
+                  f"{out / 'results.json'}); run the same command with --resume to run them again",
+                  file=sys.stderr)
+            return 1
         return 0
 
     from sim.model_check import load_checked_model
@@ -202,7 +208,8 @@ def main(argv=None, prog: str = PROG) -> int:
         png = plot_plan_features(model, res.configurations, res.time_steps,
                                  model.select_landmarks(names, poses), stem.with_suffix(".png"))
         print(f"plot: {png}")
-    return 0 if res.ok else 1
+    executed = report.get("execution", {}).get("success", True)
+    return 0 if res.ok and executed else 1
 
 
 def cli() -> None:

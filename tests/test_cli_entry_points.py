@@ -124,3 +124,30 @@ def test_plan_latency_modes(monkeypatch):
     for bad in ("soon", "-1", "nan", "inf"):
         with pytest.raises(UsageError, match="--latency"):
             plan.parse(["--model", "x", "--latency", bad])
+
+
+@pytest.mark.parametrize("executed,code", [(True, 0), (False, 1)])
+def test_one_plan_executed_exits_1_when_the_execution_fails(tmp_path, monkeypatch, capsys, executed, code):
+    """``lfd-plan --model M --execute``: a plan found but an execution that spilled or hit something
+    is a failure of the command (exit 1), not only a plan that was not found."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    import sim.model_check
+    import sim.runner
+    from sim import plan_cli
+
+    res = SimpleNamespace(ok=True, configurations=np.zeros((2, 7)), time_steps=np.array([0, 1]), cost=1.0)
+    report = dict(status="ok", cost=1.0, waypoints=2, latency_ms=5.0, edges_evaluated=3, roadmap_vertices=4,
+                  roadmap_build_s=0.1, execution=dict(success=executed, reason="ok" if executed else "spilled",
+                                                      fraction_in_bowl=0.9 if executed else 0.2, n_replans=0,
+                                                      executed_tilt_deg=120.0, planned_tilt_deg=121.0))
+    model = SimpleNamespace(task=SimpleNamespace(dt=0.1))
+    monkeypatch.setattr(sim.model_check, "load_checked_model", lambda *a, **kw: (None, "powder"))
+    monkeypatch.setattr(sim.runner, "plan_scenario", lambda *a, **kw: (report, res, model))
+    d = tmp_path / "model"
+    d.mkdir()
+    assert plan_cli.main(["--model", str(d), "--execute", "--out", str(tmp_path / "o")]) == code
+    assert ("execution: success" if executed else "execution: failure (spilled)") in capsys.readouterr().out
+

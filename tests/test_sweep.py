@@ -169,6 +169,30 @@ def test_crashed_runs_are_logged_counted_apart_and_run_again_on_resume(tmp_path,
     assert calls == [bad] and payload["crashed"] == [] and payload["variants"]["learned+learned"]["n_scenarios"] == 10
 
 
+
+def test_the_command_exits_1_when_a_run_crashed_and_0_once_resumed(tmp_path, models, fakes, monkeypatch, capsys):
+    """A failed scene is a result (exit 0); a run that crashed twice has none: ``lfd-plan --evaluate``
+    prints the table of the others and exits 1, naming ``--resume``, which then completes it."""
+    import sim.model_check
+    from sim import plan_cli
+
+    def crashing(task, scenario, variant, *args, **kw):
+        if scenario.seed == 1:
+            raise ValueError("the planner fell over")
+        return sweep_fakes.run(task, scenario, variant, *args, **kw)
+
+    monkeypatch.setattr(sim.model_check, "check_models_for_task", lambda *a, **kw: None)
+    monkeypatch.setattr(ev, "run_one", crashing)
+    argv = ["--evaluate", "--task", TASK, "--scenarios", "3", "--workers", "1", "--latency", "none",
+            "--variants", "learned+learned", "--models", str(models), "--out", str(tmp_path / "eval")]
+    assert plan_cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert "1 run(s) crashed twice" in err and "--resume" in err
+    monkeypatch.setattr(ev, "run_one", sweep_fakes.run)
+    assert plan_cli.main([*argv, "--resume"]) == 0
+
+
+
 _SWEEP = """
 import signal, sys
 # Ctrl-C as a terminal delivers it: the test process may run with SIGINT ignored (a shell
