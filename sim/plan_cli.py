@@ -39,6 +39,12 @@ def _seed_list(text: str) -> tuple[int, ...]:
     return seeds
 
 
+# the options of one mode only: given in the other, they are refused rather than ignored
+_SINGLE_ONLY = ("--model", "--scenario-seed", "--gui", "--execute", "--plot")
+_EVALUATE_ONLY = ("--scenarios", "--seed", "--seeds", "--demo-seeds", "--workers", "--executor", "--address",
+                  "--resume", "--variants", "--models", "--demos", "--move-bowl", "--video")
+
+
 def build_parser(prog: str = PROG) -> ArgumentParser:
     """The parser of ``lfd-plan`` / ``plan.py`` (``prog``)."""
     from sim.evaluate import VARIANTS
@@ -98,7 +104,13 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
 def parse(argv=None, prog: str = PROG):
     """The options of ``argv`` (default ``sys.argv[1:]``), checked; ``UsageError`` (or argparse's
     exit 2) on bad input."""
-    args = build_parser(prog).parse_args(argv)
+    ap = build_parser(prog)
+    args = ap.parse_args(argv)
+    mode, other = ("--evaluate", _SINGLE_ONLY) if args.evaluate else ("one plan (--model)", _EVALUATE_ONLY)
+    dests = {opt: opt[2:].replace("-", "_") for opt in other}
+    ignored = [opt for opt, dest in dests.items() if getattr(args, dest) != ap.get_default(dest)]
+    if ignored:  # an option of the other mode would be silently ignored
+        raise UsageError(f"{', '.join(ignored)} {'is' if len(ignored) == 1 else 'are'} not for {mode}")
     from sim.latency import parse_latency
     try:
         args.latency = str(parse_latency(args.latency))
@@ -120,8 +132,6 @@ def parse(argv=None, prog: str = PROG):
         raise UsageError(f"--demos {args.demos}: no such folder")
     if args.models is not None and args.models.exists() and not args.models.is_dir():
         raise UsageError(f"--models {args.models}: exists and is not a folder")
-    if args.move_bowl and not args.evaluate:
-        raise UsageError("--move-bowl is for --evaluate")
     if args.evaluate:
         if args.task is None:
             raise UsageError("--evaluate needs --task powder|pour")

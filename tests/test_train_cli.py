@@ -236,7 +236,12 @@ CASES = [
     ("plan-roadmap-huge", _plan("--roadmap-size", str(10**14), model=lambda d: d),
      "--roadmap-size must be in [10, 100000], got 100000000000000"),  # filled the memory
     ("seed-negative", _train("--seed", "-1"), "--seed must be in [0, 2**63), got -1"),  # a numpy traceback
-    ("plan-move-bowl-once", _plan("--move-bowl", model=lambda d: d), "--move-bowl is for --evaluate"),
+    ("plan-move-bowl-once", _plan("--move-bowl", model=lambda d: d), "--move-bowl is not for one plan"),
+    # an option of the other mode was accepted and ignored
+    ("plan-once-with-sweep-options", _plan("--scenarios", "5", "--workers", "1", model=lambda d: d),
+     "--scenarios, --workers are not for one plan (--model)"),
+    ("plan-evaluate-with-model", _plan("--evaluate", "--task", "powder", "--execute", model=lambda d: d),
+     "--model, --execute are not for --evaluate"),
     # plan.py with a model that cannot plan in the simulated scenarios: refused before any simulation
     ("plan-model-other-landmarks", _plan(model=_model),
      "needs landmark(s) ['cup'], which the powder scenarios do not sense; they provide ['bowl', 'marker_1', "),
