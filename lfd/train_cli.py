@@ -433,9 +433,7 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
             warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"lfd\.learning\.learn")
             result = fit(ds, kin, cfg, callback=log, on_restart=on_restart, resume=resumed, workers=args.workers)
         log.final(result)
-    except ValueError as e:  # every restart failed, the refit failed, a non-finite model
-        raise UsageError(str(e)) from e
-    finally:
+    finally:  # a FitError (every restart failed, a non-finite model, ...) is one line and exit 2
         log.close()
     m = result.model
     summary = _summary(result, ds, cfg, n_obs)

@@ -491,25 +491,29 @@ def test_device_that_is_not_a_torch_device_is_one_line_exit_2(device, tmp_path, 
     assert not (tmp_path / "o").exists()
 
 
-def test_failed_train_leaves_no_out_folder_and_keeps_the_exception(synth_dir, tmp_path, monkeypatch):
-    """A bug inside the fit is not swallowed (its traceback is the report), and the folders the
-    run created are removed; a folder that existed before keeps what it held."""
+@pytest.mark.parametrize("bug", [RuntimeError, ValueError])
+def test_failed_train_leaves_no_out_folder_and_keeps_the_exception(synth_dir, tmp_path, monkeypatch, bug):
+    """A bug inside the fit is not swallowed (its traceback is the report: a ValueError is not
+    made a user's error, only the fit's own ``FitError``), and the folders the run created are
+    removed; a folder that existed before keeps what it held."""
     import lfd.learning.learn
     import train
+    from lfd.errors import UserInputError
 
     def broken_fit(*args, **kwargs):
-        raise RuntimeError("a bug in the fit")
+        raise bug("a bug in the fit")
 
     monkeypatch.setattr(lfd.learning.learn, "fit", broken_fit)
     argv = ["--task", "powder", "--demos", str(synth_dir), "--restarts", "1", "--time-steps", "5"]
     out = tmp_path / "a" / "b" / "out"
-    with pytest.raises(RuntimeError, match="a bug in the fit"):
+    with pytest.raises(bug, match="a bug in the fit") as info:
         train.main([*argv, "--out", str(out)])
+    assert not isinstance(info.value, UserInputError)
     assert not (tmp_path / "a").exists()
     existing = tmp_path / "mine"
     existing.mkdir()
     (existing / "notes.txt").write_text("keep me")
-    with pytest.raises(RuntimeError, match="a bug in the fit"):
+    with pytest.raises(bug, match="a bug in the fit"):
         train.main([*argv, "--out", str(existing)])
     assert (existing / "notes.txt").read_text() == "keep me"
 

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
+from lfd.errors import UserInputError
 from lfd.learning.checkpoint import CheckpointError, FitProgress, config_record, demos_fingerprint
 from lfd.learning.dtw import (
     dwell_limits,
@@ -59,8 +60,15 @@ from lfd.learning.fitconfig import DTYPES, ENV_MODES, INITS, M_STEPS, TOOL_MODES
 from lfd.learning.identify import check_learnable, identifiability_notes
 from lfd.learning.model import TaskModel
 
-__all__ = ["ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitResult", "fit", "initial_guesses",
-           "restart_workers"]
+__all__ = ["ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitError", "FitResult", "fit",
+           "initial_guesses", "restart_workers"]
+
+
+class FitError(UserInputError):
+    """The fit cannot give a model for these demonstrations and settings: too few samples for the
+    time steps, a fixed landmark without its task.json, every restart failed, a non-finite model.
+    The message says which, and what to change."""
+
 
 def _resolve(cfg: FitConfig):
     if str(cfg.device).startswith("cuda") and not torch.cuda.is_available():
@@ -133,9 +141,11 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
 
     Raises
     ------
+    FitError (a ``lfd.errors.UserInputError``)
+        demonstrations too short for the time steps, a mode that needs ``demoset.task``
+        without one, every restart failing, a refit that failed, a non-finite model.
     ValueError
-        bad settings, demonstrations too short for the time steps, a mode that needs
-        ``demoset.task`` without one, or every restart failing.
+        bad settings (``workers``, a device this machine lacks).
     lfd.learning.checkpoint.CheckpointError (a ValueError)
         ``resume`` made for other demonstrations or settings.
     """
@@ -196,17 +206,17 @@ def _progress(cfg, fingerprint, histories, losses, iters, notes, best) -> FitPro
 
 
 def _check_inputs(demoset, cfg: FitConfig) -> None:
-    """``ValueError`` for demonstrations too short for the model, or a fixed landmark choice
+    """``FitError`` for demonstrations too short for the model, or a fixed landmark choice
     without the task.json it needs."""
     need = min_samples(cfg.time_steps, cfg.offsets)
     short = [d.name or str(i) for i, d in enumerate(demoset.demos) if d.n_samples < need]
     if short:
         stride = f" after keeping 1 sample in {cfg.subsample} (FitConfig.subsample)" if cfg.subsample > 1 else ""
-        raise ValueError(f"demonstration(s) {short} have fewer than {need} samples{stride}, too few for "
+        raise FitError(f"demonstration(s) {short} have fewer than {need} samples{stride}, too few for "
                          f"{cfg.time_steps} time steps with offsets {cfg.offsets} (fewer time steps, or offsets "
                          "that may skip a step, e.g. train.py --offsets 0 1 2, need fewer)")
     if (cfg.tool == "tip" or cfg.env == "bowl") and demoset.task is None:
-        raise ValueError(f"tool={cfg.tool!r}, env={cfg.env!r} need the demonstrations' task.json")
+        raise FitError(f"tool={cfg.tool!r}, env={cfg.env!r} need the demonstrations' task.json")
 
 
 def _fixed_landmarks(demoset, cfg: FitConfig) -> tuple[tuple | None, np.ndarray | None]:
@@ -219,7 +229,7 @@ def _fixed_landmarks(demoset, cfg: FitConfig) -> tuple[tuple | None, np.ndarray 
     if cfg.env == "bowl":
         ref = demoset.task.reference_landmark
         if ref not in demoset.landmark_names:
-            raise ValueError(f"env='bowl' fixes the environment landmark to the task's reference_landmark "
+            raise FitError(f"env='bowl' fixes the environment landmark to the task's reference_landmark "
                              f"{ref!r} (task.json), which is not among the sensed landmarks "
                              f"{list(demoset.landmark_names)}")
         fixed_env = np.zeros(len(demoset.landmark_names))
@@ -350,7 +360,7 @@ def _run_restarts(demoset, data: FitData, cfg: FitConfig, fixed, callback, dtype
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
     if log.best is None:
-        raise ValueError(f"every one of the {cfg.restarts} restarts failed: {'; '.join(log.notes)}")
+        raise FitError(f"every one of the {cfg.restarts} restarts failed: {'; '.join(log.notes)}")
     return log
 
 
@@ -384,7 +394,7 @@ def _prune_and_refit(data: FitData, cfg: FitConfig, names, fixed_env, log: _Rest
                 state, hist = fitter.em(tool, w, align, cfg.tool == "learn", len(kept) > 1,
                                         _emitter(callback, "refit", best_r, tuple(names[i] for i in kept)))
             except EM_FAILURES as e:
-                raise ValueError(f"refit after pruning to {[names[i] for i in kept]} failed: {e}") from e
+                raise FitError(f"refit after pruning to {[names[i] for i in kept]} failed: {e}") from e
             tool, w, *_, align = state  # the next round starts where this refit ended
             log.histories.append(tuple(hist))
             log.iters.append(len(hist))
@@ -421,7 +431,7 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     mu, sigma_inv = fitter.final_eta(tool, w, mu, sigma_inv, align)  # the model's Gaussians
     finite = all(bool(torch.isfinite(x).all()) for x in (tool, w, mu, sigma_inv))
     if not (math.isfinite(final_loss) and finite and bool((log_trans < math.inf).all())):  # -inf: forbidden
-        raise ValueError("the fit ended with non-finite values (NaN or inf) in the model; no model is returned")
+        raise FitError("the fit ended with non-finite values (NaN or inf) in the model; no model is returned")
 
     with torch.no_grad():
         _, A = data.features(tool, w, fitter.T_lm)
