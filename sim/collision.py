@@ -188,40 +188,53 @@ def _inplace_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
     return check_here, restored, lambda: None
 
 
-def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
-    """``(check_here(q), restored, close)`` working in a private collision-only client."""
-    from sim import assets, quiet_stdio
-    from sim.world import _patched_urdf
+def _scene_body(shadow: int, body: int) -> int:
+    """``body`` of the private client taken out of performCollisionDetection (self collision
+    only); ``_too_close`` measures the scene. getClosestPoints ignores collision filters (PyBullet
+    3.2.x; bullet3 issue 4376 calls it a bug): should a release change that,
+    test_every_configuration_closer_than_the_margin_collides fails, and this filter must go."""
+    for link in range(-1, p.getNumJoints(body, physicsClientId=shadow)):
+        p.setCollisionFilterGroupMask(body, link, 0, 0, physicsClientId=shadow)
+    return body
 
-    shadow = p.connect(p.DIRECT)
+
+def _shadow_robot(world, shadow: int, shaped, pairs) -> int:
+    """The world's robot loaded into the private client ``shadow`` without its visuals, in the
+    world's joint state, self collision kept only between the link pairs of ``pairs``."""
+    from sim import quiet_stdio
+    from sim.world import patched_urdf
+
     with tempfile.TemporaryDirectory() as tmp:
-        urdf = _patched_urdf(world.spec, world.task, Path(tmp))
+        urdf = patched_urdf(world.spec, world.task, Path(tmp))
         urdf.write_text(re.sub(r"<visual>.*?</visual>", "", urdf.read_text(), flags=re.DOTALL))
         with quiet_stdio():
             robot = p.loadURDF(str(urdf), (0, 0, 0), (0, 0, 0, 1), useFixedBase=True,
                                flags=p.URDF_USE_SELF_COLLISION, physicsClientId=shadow)
-    n = p.getNumJoints(robot, physicsClientId=shadow)
-    for j in range(n):  # right arm, head, fingers as in the world
+    for j in range(p.getNumJoints(robot, physicsClientId=shadow)):  # right arm, head, fingers as in the world
         p.resetJointState(robot, j, p.getJointState(world.robot, j, physicsClientId=world.client)[0],
                           physicsClientId=shadow)
     checked = {frozenset(pr) for pr in pairs}
-    shaped = moving + fixed
     for i, a in enumerate(shaped):
         for b in shaped[i + 1:]:
             if frozenset((a, b)) not in checked:
                 p.setCollisionFilterPair(robot, robot, a, b, 0, physicsClientId=shadow)
+    return robot
+
+
+def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
+    """``(check_here(q), restored, close)`` working in a private collision-only client."""
+    from sim import assets
+
+    shadow = p.connect(p.DIRECT)
+    if shadow < 0:
+        raise RuntimeError("cannot connect a PyBullet client for the collision checks")
+    try:
+        robot = _shadow_robot(world, shadow, moving + fixed, pairs)
+        bodies = {"table": _scene_body(shadow, assets.build_table(shadow))}
+    except BaseException:  # no private client is left connected when its set-up fails
+        p.disconnect(shadow)
+        raise
     moving_set = frozenset(moving)
-
-    def scene_body(body: int) -> int:
-        # out of performCollisionDetection (self collision only); _too_close measures the scene.
-        # getClosestPoints ignores collision filters (PyBullet 3.2.x; bullet3 issue 4376 calls it
-        # a bug): should a release change that, test_every_configuration_closer_than_the_margin_
-        # collides fails, and this filter must go.
-        for link in range(-1, p.getNumJoints(body, physicsClientId=shadow)):
-            p.setCollisionFilterGroupMask(body, link, 0, 0, physicsClientId=shadow)
-        return body
-
-    bodies = {"table": scene_body(assets.build_table(shadow))}
     cache = {"version": None}
 
     def sync():
@@ -232,7 +245,7 @@ def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
             p.removeBody(bodies.pop(name), physicsClientId=shadow)
         for name in wanted:
             if name not in bodies:
-                bodies[name] = scene_body(assets.BUILDERS[name][0](shadow))
+                bodies[name] = _scene_body(shadow, assets.BUILDERS[name][0](shadow))
             pos, quat = p.getBasePositionAndOrientation(world.objects[name], physicsClientId=world.client)
             p.resetBasePositionAndOrientation(bodies[name], pos, quat, physicsClientId=shadow)
         cache.update(version=world.scene_version, bodies=list(bodies.values()),

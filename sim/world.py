@@ -28,7 +28,7 @@ from sim import assets, quiet_stdio
 from sim import layout as L
 from sim.particles import ParticleSet, in_bowl_mask, in_tool_mask, particle_positions, remove_particles, spawn_particles
 
-__all__ = ["World", "main", "pose_to_matrix"]
+__all__ = ["World", "main", "patched_urdf", "pose_to_matrix"]
 
 TASKS = ("powder", "pour")
 LANDMARKS = {"powder": ("bowl", "marker_1", "marker_2", "marker_3", "marker_4"),
@@ -46,7 +46,7 @@ def pose_to_matrix(pos, quat_xyzw) -> np.ndarray:
     return T
 
 
-def _patched_urdf(spec: RobotSpec, task: str, folder: Path) -> Path:
+def patched_urdf(spec: RobotSpec, task: str, folder: Path) -> Path:
     """A copy of the robot URDF with absolute mesh paths and the tool link spliced in."""
     src = resolve_urdf(spec.urdf)
     text = src.read_text(errors="replace")
@@ -93,8 +93,8 @@ class World:
             raise RuntimeError("cannot connect to PyBullet" + (" GUI (is there a display?)" if gui else ""))
         try:
             self._build(n_particles, particle_radius, scenario)
-        except Exception:
-            p.disconnect(self.client)
+        except BaseException:  # (Ctrl-C too) no half-built client is left connected
+            self.close()
             raise
 
     # --- construction -------------------------------------------------------------------
@@ -104,7 +104,7 @@ class World:
         p.setTimeStep(L.SIM_DT, physicsClientId=c)
         p.configureDebugVisualizer(p.COV_ENABLE_GUI, 0, physicsClientId=c)
         with tempfile.TemporaryDirectory() as tmp:
-            urdf = _patched_urdf(self.spec, self.task, Path(tmp))
+            urdf = patched_urdf(self.spec, self.task, Path(tmp))
             with quiet_stdio():  # PyBullet reports links without inertia on stdout
                 self.robot = p.loadURDF(str(urdf), (0, 0, 0), (0, 0, 0, 1), useFixedBase=True,
                                         flags=p.URDF_USE_INERTIA_FROM_FILE, physicsClientId=c)

@@ -173,3 +173,30 @@ def test_contact_log_counts_touches_not_close_passes(world):
     finally:
         world.remove_object("paper_towels")
         world.set_q(L.HOME_Q)
+
+
+@pytest.mark.parametrize("stop", [ValueError, KeyboardInterrupt])
+def test_a_world_whose_construction_fails_leaves_no_client_connected(monkeypatch, stop):
+    """A failure (or Ctrl-C) while the scene is built disconnects the world's client, and a
+    collision checker whose private client fails to set up disconnects that one."""
+    import sim.collision
+    import sim.world
+
+    opened = []
+    connect = p.connect
+    monkeypatch.setattr(sim.world.p, "connect", lambda *a, **kw: opened.append(connect(*a, **kw)) or opened[-1])
+
+    def broken(*args, **kwargs):
+        raise stop("while building")
+
+    with monkeypatch.context() as m:
+        m.setattr(World, "_build", broken)
+        with pytest.raises(stop):
+            World("powder")
+    assert len(opened) == 1 and not p.isConnected(opened[0])
+    with World("powder") as w:
+        with monkeypatch.context() as m:
+            m.setattr(sim.collision, "_shadow_robot", broken)
+            with pytest.raises(stop):
+                sim.collision.make_collision_fns(w)
+        assert len(opened) == 3 and not p.isConnected(opened[2]) and p.isConnected(w.client)
