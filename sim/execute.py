@@ -90,10 +90,17 @@ class ExecSettings:
             raise ValueError(f"profile must be one of {PROFILES}, got {self.profile!r}")
         if self.pace not in PACES:
             raise ValueError(f"pace must be one of {PACES}, got {self.pace!r}")
-        if self.accel <= 0:
-            raise ValueError(f"accel must be positive, got {self.accel}")
-        if self.sense_period <= 0 or self.replan_threshold <= 0:
-            raise ValueError("sense_period and replan_threshold must be positive")
+        for name in ("accel", "sense_period", "replan_threshold", "force"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"{name} must be positive and finite, got {getattr(self, name)}")
+        if not (math.isfinite(self.settle_s) and self.settle_s >= 0):
+            raise ValueError(f"settle_s must be a finite number of seconds >= 0, got {self.settle_s}")
+        if not 0 < self.success_fraction <= 1:
+            raise ValueError(f"success_fraction must be in (0, 1], got {self.success_fraction}")
+        for name, least in (("record_every", 1), ("frame_every", 0), ("max_replans", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                raise ValueError(f"{name} must be a whole number >= {least}, got {value!r}")
 
 
 @dataclass
@@ -201,7 +208,7 @@ class _ClosedLoop:
         self.world, self.planner, self.scenario, self.s, self.frames = world, planner, scenario, s, frames
         model = planner.model
         self.vmax = model.kin.velocity.cpu().numpy()
-        self.dt = float(model.task.dt) if model.task is not None else 0.1
+        self.dt = planner.dt
         self.tool = model.tool.detach().cpu().numpy()
         self.keep = model.landmark_names
         self.clock = (step_clock(model.log_trans.detach().cpu().numpy(), model.offsets, self.dt)

@@ -207,7 +207,7 @@ def main(argv=None, prog: str = PROG) -> int:
     import numpy as np
     stem = out / f"plan_scenario{args.scenario_seed}"
     np.savez(stem.with_suffix(".npz"), configurations=res.configurations, time_steps=res.time_steps,
-             dt=model.task.dt if model.task else 0.1, cost=res.cost)
+             dt=model.task.dt, cost=res.cost)
     stem.with_suffix(".json").write_text(json.dumps(report, indent=2, default=float) + "\n")
     print(f"saved {stem.with_suffix('.npz')} and {stem.with_suffix('.json')}")
     if args.plot and res.ok:

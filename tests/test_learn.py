@@ -50,6 +50,10 @@ def test_config_options_are_validated():
         FitConfig(solver=SolverSettings(tool_search=-0.1))
     with pytest.raises(ValueError, match="FitConfig.max_dwell must be at least 1"):
         FitConfig(max_dwell=0.5)
+    for bad in (-1.0, 0.0, float("nan")):  # was a non-positive-definite Sigma and 'every restart failed'
+        with pytest.raises(ValueError, match="FitConfig.floor_weight must be a positive number"):
+            FitConfig(floor_weight=bad)
+    assert FitConfig(floor_weight=3.0).floor_weight == 3.0
     assert FitConfig(time_steps=8, offsets=(0, 1, 4)).offsets == (0, 1, 4)  # the largest: max(2, T // 2)
     with pytest.raises(ValueError, match=r"FitConfig.offsets: 5 is larger than the largest permitted.* = 4"):
         FitConfig(time_steps=8, offsets=(0, 1, 5))

@@ -15,6 +15,7 @@ from lfd.robot.robots import BAXTER_LEFT
 from lfd.planning.stepcost import ModelStepCost
 from lfd.planning.biased import chain_edges
 from lfd.planning.edgestore import EdgeStore
+from lfd.learning.tasks import POWDER
 from lfd.planning.task_planner import TaskPlanner, TaskPlannerSettings
 
 
@@ -42,7 +43,7 @@ def _model(kin, T=6, feature_set="paper"):
     log_trans[-1] = torch.tensor([0.0, -math.inf, -math.inf])
     log_trans[-2, 2] = -math.inf
     return TaskModel(torch.tensor([0.0, 0.0, 0.1], dtype=torch.float64), torch.ones(1, dtype=torch.float64),
-                     mu, sigma_inv, log_trans, ["bowl"], BAXTER_LEFT, kin=kin, feature_set=feature_set)
+                     mu, sigma_inv, log_trans, ["bowl"], BAXTER_LEFT, task=POWDER, kin=kin, feature_set=feature_set)
 
 
 def test_chain_edges_join_consecutive_valid_samples():
@@ -91,7 +92,7 @@ def _random_cov_model(kin, feature_set: str, blocks: bool | str) -> TaskModel:
     sigma_inv = L + torch.diag_embed(torch.exp(0.5 * torch.randn(T, F, generator=g, dtype=torch.float64)))
     return TaskModel(torch.tensor([0.02, -0.01, 0.1], dtype=torch.float64),
                      torch.tensor([0.3, 0.7], dtype=torch.float64), base.mu, sigma_inv, base.log_trans,
-                     ["bowl", "cup"], BAXTER_LEFT, logdet_scale=0.6, kin=kin, feature_set=feature_set)
+                     ["bowl", "cup"], BAXTER_LEFT, task=POWDER, logdet_scale=0.6, kin=kin, feature_set=feature_set)
 
 
 @pytest.mark.parametrize("feature_set,blocks", [("paper", False), ("attitude", False), ("attitude", True),
@@ -269,6 +270,16 @@ def test_region_samples_follow_the_inflated_joint_gaussians(kin):
         TaskPlannerSettings(region_fraction=1.5)
     with pytest.raises(ValueError, match="posture_share"):
         TaskPlannerSettings(posture_share=-0.1)
+    untimed = _model(kin)
+    untimed.task = None  # a model learned without a task.json has no time step to plan with
+    with pytest.raises(ValueError, match="the model names no task"):
+        TaskPlanner(untimed, lambda q: False, lambda a, b: False)
+    for bad in ({"max_vertices": 1}, {"n_vertices": 100, "max_vertices": 50}):
+        with pytest.raises(ValueError, match="max_vertices must be None or at least n_vertices"):
+            TaskPlannerSettings(**bad)
+    for seed in (-1, 2**63, 1.5, True):
+        with pytest.raises(ValueError, match="seed must be a whole number"):
+            TaskPlannerSettings(seed=seed)
 
 
 def _tight_model(kin):

@@ -130,3 +130,9 @@ def test_exec_settings_check_their_options():
         ExecSettings(profile="cubic")
     with pytest.raises(ValueError, match="pace must be one of"):
         ExecSettings(pace="slow")
+    bad = {"record_every": 0, "frame_every": -1, "max_replans": 2.5, "success_fraction": 0.0, "settle_s": -1.0,
+           "force": float("nan"), "accel": 0.0, "sense_period": float("inf"), "replan_threshold": -0.01}
+    for name, value in bad.items():  # record_every=0 was a ZeroDivisionError mid-run
+        with pytest.raises(ValueError, match=f"^{name} must be"):
+            ExecSettings(**{name: value})
+    assert ExecSettings(frame_every=0, max_replans=0, settle_s=0.0, success_fraction=1.0).record_every == 12

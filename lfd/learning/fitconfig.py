@@ -220,6 +220,9 @@ class FitConfig:
         if not all(math.isfinite(x) and x > 0 for x in (self.floor_joint, self.floor_task, self.floor_attitude)):
             raise ValueError(f"FitConfig.floor_joint, floor_task and floor_attitude must be positive standard "
                              f"deviations, got {self.floor_joint}, {self.floor_task}, {self.floor_attitude}")
+        if self.floor_weight is not None and not (math.isfinite(self.floor_weight) and self.floor_weight > 0):
+            raise ValueError(f"FitConfig.floor_weight must be a positive number of pseudo-observations or None "
+                             f"(the mean observations per step), got {self.floor_weight}")
         if not (math.isfinite(self.tool_radius) and self.tool_radius > 0):
             raise ValueError(f"FitConfig.tool_radius must be a positive distance in metres, got {self.tool_radius}")
         if not (math.isfinite(self.logdet_scale) and self.logdet_scale > 0):

@@ -68,7 +68,12 @@ class TaskPlanner:
 
     def __init__(self, model: TaskModel, collision_fn, segment_fn, sample_fn=None,
                  batch_collision_fn=None, settings: TaskPlannerSettings | None = None):
+        if model.task is None:  # (was planned at a made-up 0.1 s, which weighs motion against time)
+            raise ValueError("the model names no task (its demonstrations had no task.json), so its time step is "
+                             "unknown: add a task.json (lfd.learning.tasks.TaskSpec) to the demonstrations and "
+                             "train again, or set model.task")
         self.model = model
+        self.dt = float(model.task.dt)  # seconds per sample of the model's time base (Sec. V's edge costs)
         self.settings = settings = settings or TaskPlannerSettings()
         self.kin = model.kin
         self._gen = torch.Generator().manual_seed(settings.seed)
@@ -210,7 +215,7 @@ class TaskPlanner:
         self._growth.initial(self.roadmap, self._landmarks, n_bias)
         self.planner = ClosedLoopPlanner(
             self.roadmap, ModelStepCost(self.model), self.model.trans_cost.detach().cpu().numpy(),
-            dt=float(self.model.task.dt) if self.model.task else 0.1,
+            dt=self.dt,
             vmax=self.kin.velocity.cpu().numpy(), offsets=self.model.offsets, settings=s.planner,
             keypoint_fn=self.keypoints)
 

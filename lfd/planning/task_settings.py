@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from lfd.planning.planner import PlannerSettings
 from lfd.planning.roadmap import RoadmapSettings
 
@@ -82,3 +84,8 @@ class TaskPlannerSettings:
         if self.regrow_distance <= 0 or (self.regrow_vertices is not None and self.regrow_vertices < 0):
             raise ValueError("regrow_distance must be > 0 and regrow_vertices >= 0, got "
                              f"{self.regrow_distance}, {self.regrow_vertices}")
+        if self.max_vertices is not None and not (self.max_vertices >= 2 and self.max_vertices >= (self.n_vertices or 2)):
+            raise ValueError(f"max_vertices must be None or at least n_vertices ({self.n_vertices}) and 2, "
+                             f"got {self.max_vertices}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed < 2**63:
+            raise ValueError(f"seed must be a whole number in [0, 2**63), got {self.seed!r}")
