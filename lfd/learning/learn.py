@@ -417,7 +417,6 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     fixed = _fixed_landmarks(demoset, cfg)
     data = FitData(demoset, kin, dtype, device, cfg.features)
     t_fk = time.perf_counter() - t0
-    torch.manual_seed(cfg.seed)
 
     log = _run_restarts(demoset, data, cfg, fixed, callback, dtype, device, on_restart, resume, fingerprint,
                         workers)
