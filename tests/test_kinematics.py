@@ -154,6 +154,22 @@ def test_a_transmission_does_not_erase_a_joints_limits(tmp_path):
         assert torch.equal(getattr(kin, k), getattr(ref, k)), k
 
 
+def test_the_urdf_is_read_without_the_parsers_complaints(tmp_path, capfd):
+    """The Baxter description holds tags urdf_parser_py does not model (Gazebo, transmissions, a
+    material inside a collision): reading it prints nothing, and the parser's module-level error
+    hook is the library's own afterwards. FK equals the full description's (test_fk_matches_pybullet
+    checks the values)."""
+    from pytorch_kinematics.urdf_parser_py.xml_reflection import core
+
+    hook = core.on_error
+    kin = _edited_baxter(tmp_path, "</robot>", '<gazebo reference="left_hand"><material>Gazebo/Red</material></gazebo></robot>')
+    assert capfd.readouterr().err == "" and core.on_error is hook
+    q = torch.zeros(3, 7, dtype=torch.float64)
+    q[1] = 0.3
+    q[2, ::2] = -0.5
+    assert torch.allclose(kin.fk(q), KinematicModel.from_spec(BAXTER_LEFT).fk(q), atol=1e-12)
+
+
 @pytest.mark.parametrize("old,new,fragment", [
     ('lower="-1.70167993878"', 'lower="abc"', "limit lower='abc' is not a number"),  # was a ValueError traceback
     ('lower="-1.70167993878"', 'lower="nan"', "limit lower is NaN"),  # switched the limit check off

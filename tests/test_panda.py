@@ -57,7 +57,9 @@ def test_the_learned_task_is_planned_for_the_panda_with_the_users_collision_chec
         return any(collision_fn(q1 + a * (q2 - q1)) for a in np.linspace(0, 1, 15))
 
     assert any(map(collision_fn, demo.q)) and not collision_fn(q_start) and not collision_fn(demo.q[-1])
-    planner = TaskPlanner(model, collision_fn, segment_fn, settings=TaskPlannerSettings(n_vertices=400, seed=0))
+    assert model.task is None  # the user's recordings came without a task.json: the planner is given dt
+    planner = TaskPlanner(model, collision_fn, segment_fn, settings=TaskPlannerSettings(n_vertices=400, seed=0),
+                          dt=demo.dt)
     planner.update_landmarks(list(ds.landmark_names), poses)
     result = planner.plan(q_start, 0)
     assert result.ok, result.message

@@ -274,6 +274,9 @@ def test_region_samples_follow_the_inflated_joint_gaussians(kin):
     untimed.task = None  # a model learned without a task.json has no time step to plan with
     with pytest.raises(ValueError, match="the model names no task"):
         TaskPlanner(untimed, lambda q: False, lambda a, b: False)
+    assert TaskPlanner(untimed, lambda q: False, lambda a, b: False, dt=0.05).dt == 0.05
+    with pytest.raises(ValueError, match="differs from the model's task 'powder', 0.1 s"):
+        TaskPlanner(_model(kin), lambda q: False, lambda a, b: False, dt=0.05)
     for bad in ({"max_vertices": 1}, {"n_vertices": 100, "max_vertices": 50}):
         with pytest.raises(ValueError, match="max_vertices must be None or at least n_vertices"):
             TaskPlannerSettings(**bad)

@@ -53,6 +53,21 @@ from lfd.planning.task_settings import TaskPlannerSettings, default_vertices
 
 __all__ = ["TaskPlanner", "TaskPlannerSettings"]  # the settings live in lfd.planning.task_settings
 
+def _time_base(model: TaskModel, dt: float | None) -> float:
+    """The model's seconds per sample: its task's, or ``dt`` for a model without one."""
+    if dt is not None and not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
+    if model.task is None:
+        if dt is None:  # (was planned at a made-up 0.1 s, which weighs motion against time)
+            raise ValueError("the model names no task (its demonstrations had no task.json), so its time step "
+                             "is unknown: pass dt= (the demonstrations' sampling interval times the stride "
+                             "learned at), or add a task.json to the demonstrations and train again")
+        return float(dt)
+    if dt is not None and not math.isclose(dt, model.task.dt):
+        raise ValueError(f"dt={dt} differs from the model's task {model.task.name!r}, {model.task.dt} s")
+    return float(model.task.dt)
+
+
 class TaskPlanner:
     """Plans a learned task around the caller's obstacles.
 
@@ -64,16 +79,16 @@ class TaskPlanner:
     sample_fn : ``n -> (n, d)`` configurations; uniform within the joint limits by default.
     batch_collision_fn : optional ``(B, d) -> (B,) bool``.
     settings : ``TaskPlannerSettings``.
+    dt : seconds per sample of the model's time base (Sec. V's edge costs weigh a motion's
+        duration in samples), for a model that names no task (learned from demonstrations without
+        a task.json: their sampling interval times the stride learned at); a model with a task has
+        its task's, and another value is refused.
     """
 
     def __init__(self, model: TaskModel, collision_fn, segment_fn, sample_fn=None,
-                 batch_collision_fn=None, settings: TaskPlannerSettings | None = None):
-        if model.task is None:  # (was planned at a made-up 0.1 s, which weighs motion against time)
-            raise ValueError("the model names no task (its demonstrations had no task.json), so its time step is "
-                             "unknown: add a task.json (lfd.learning.tasks.TaskSpec) to the demonstrations and "
-                             "train again, or set model.task")
+                 batch_collision_fn=None, settings: TaskPlannerSettings | None = None, dt: float | None = None):
         self.model = model
-        self.dt = float(model.task.dt)  # seconds per sample of the model's time base (Sec. V's edge costs)
+        self.dt = _time_base(model, dt)
         self.settings = settings = settings or TaskPlannerSettings()
         self.kin = model.kin
         self._gen = torch.Generator().manual_seed(settings.seed)

@@ -28,6 +28,21 @@ class KinematicsError(UserInputError):
     """A robot description or an input to the kinematics that cannot be used."""
 
 
+def _kinematic_urdf(root: ET.Element) -> bytes:
+    """The robot description with only what forward kinematics reads: its joints whole, its
+    links by name (their visuals, collisions and inertia dropped), nothing else (transmissions,
+    Gazebo tags). urdf_parser_py, which pytorch-kinematics parses with, prints every tag it does
+    not model to stderr (a material inside a collision, a transmission): not errors for
+    kinematics, and without them it has nothing to print."""
+    out = ET.Element(root.tag, root.attrib)
+    for child in root:
+        if child.tag == "joint":
+            out.append(copy.deepcopy(child))
+        elif child.tag == "link":
+            ET.SubElement(out, "link", child.attrib)
+    return ET.tostring(out)
+
+
 def _joint_table(urdf_text: str) -> dict[str, dict]:
     """Per joint of the URDF (the robot's own ``<joint>`` elements, not the ones a ROS
     ``<transmission>`` names): type, lower, upper, velocity (None when absent).
@@ -94,20 +109,14 @@ class KinematicModel:
             joints = _joint_table(text)
         except ET.ParseError as e:
             raise KinematicsError(f"cannot parse URDF {urdf_path}: {e}") from e
-        links = {ln.get("name") for ln in ET.fromstring(text).iter("link")}
+        root = ET.fromstring(text)
+        links = {ln.get("name") for ln in root.iter("link")}
         if end_link not in links:
             raise KinematicsError(f"end link {end_link!r} is not a link of {urdf_path.name}")
-        from pytorch_kinematics.urdf_parser_py.xml_reflection import core as _xml_core
-
-        # urdf_parser_py prints every tag it does not model (ROS transmissions, Gazebo materials)
-        # to stderr; those are not errors for kinematics, so silence them during the parse only.
-        saved, _xml_core.on_error = _xml_core.on_error, (lambda message: None)
         try:
-            chain = pk.build_serial_chain_from_urdf(text.encode(), end_link)
+            chain = pk.build_serial_chain_from_urdf(_kinematic_urdf(root), end_link)
         except Exception as e:  # pytorch-kinematics raises bare exceptions for bad chains
             raise KinematicsError(f"cannot build a chain to {end_link!r} from {urdf_path}: {e}") from e
-        finally:
-            _xml_core.on_error = saved
         chain_joints = list(chain.get_joint_parameter_names())
         if joint_names is None:
             joint_names = chain_joints
