@@ -61,7 +61,7 @@ class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         if "%(default)" in text or "default" in text.lower() or action.default is argparse.SUPPRESS \
                 or action.required or not action.option_strings:
             return text
-        if isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction)):
+        if action.nargs == 0 and isinstance(action.const, bool):  # a store_true / store_false flag
             return f"{text} (default: {'on' if action.default else 'off'})"
         if action.default is None:
             return text

@@ -18,9 +18,7 @@ def plot_plan_features(model, configurations: np.ndarray, time_steps: np.ndarray
     One panel per task-space axis: the learned mean ±2 standard deviations per time step, and
     the plan's waypoints at their time steps.
     """
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: the caller's backend and figures stay as they are
 
     task = model.tool_features
     with torch.no_grad():
@@ -29,7 +27,8 @@ def plot_plan_features(model, configurations: np.ndarray, time_steps: np.ndarray
         mu = model.mu.cpu().numpy()[:, task]
         std = torch.sqrt(torch.diagonal(model.covariances, dim1=-2, dim2=-1)).cpu().numpy()[:, task]
     t = np.arange(len(mu))
-    fig, axes = plt.subplots(3, 1, figsize=(7, 7), sharex=True)
+    fig = Figure(figsize=(7, 7))
+    axes = fig.subplots(3, 1, sharex=True)
     for k, (ax, name) in enumerate(zip(axes, "xyz")):
         ax.fill_between(t, mu[:, k] - 2 * std[:, k], mu[:, k] + 2 * std[:, k], alpha=0.25,
                         label="learned mean ± 2σ")
@@ -42,5 +41,4 @@ def plot_plan_features(model, configurations: np.ndarray, time_steps: np.ndarray
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path

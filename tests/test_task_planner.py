@@ -560,3 +560,19 @@ def test_a_grown_roadmap_costs_its_new_edges_alone_and_equals_a_full_costing(kin
     costed = store.counters["costed_edges"]
     assert np.abs(store.costs()[1][finite] - W[finite]).max() > 1.0
     assert store.counters["costed_edges"] - costed == len(W)  # every edge again
+
+
+def test_the_plan_plot_is_a_png_and_leaves_the_callers_matplotlib_alone(kin, tmp_path):
+    """``lfd.plots.plot_plan_features`` writes a picture of the plan against the learned means
+    without pyplot: the caller's backend and open figures are untouched."""
+    import matplotlib
+    from PIL import Image
+
+    from lfd.plots import plot_plan_features
+    model = _model(kin)
+    backend = matplotlib.get_backend()
+    Q = model.mu[:, :7].numpy()
+    png = plot_plan_features(model, Q, np.arange(len(Q)), np.eye(4)[None], tmp_path / "plan.png")
+    assert matplotlib.get_backend() == backend
+    with Image.open(png) as im:
+        assert im.format == "PNG" and im.size == (770, 770)
