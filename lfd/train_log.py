@@ -58,6 +58,7 @@ class Logger:
         m = result.model
         std = np.sqrt(np.diagonal(m.covariances.cpu().numpy(), axis1=1, axis2=2))  # (T, F)
         names = self.joint_names + ["task_x", "task_y", "task_z"]
+        names += [f"gripper_{axis}_{c}" for axis in "xy" for c in "xyz"][:m.n_task_features - 3]  # the attitude's
         for t in range(m.time_steps):
             for j, n in enumerate(names):
                 w.add_scalar(f"features/std/{n}", float(std[t, j]), t)

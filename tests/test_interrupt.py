@@ -157,6 +157,19 @@ def test_guard_defers_signals_in_critical_sections(sig, status):
     assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL  # handlers restored
 
 
+def test_a_failure_inside_a_critical_section_is_not_hidden_by_a_signal_that_came_meanwhile():
+    """Ctrl-C during a checkpoint write that then fails: the write's error is what surfaces (it was
+    replaced by Interrupted, and the command said the checkpoint was saved)."""
+    with InterruptGuard() as guard:
+        with pytest.raises(OSError, match="disk full"):
+            with guard.critical():
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.05)
+                raise OSError("disk full")
+        with guard.critical():  # the dropped signal is not raised later either
+            pass
+
+
 def test_checkpoint_round_trip_with_every_restart_dropped(tmp_path):
     from lfd.learning.checkpoint import FitProgress, save_checkpoint
     p = FitProgress(config={"seed": 0}, fingerprint="abc", restart_losses=(float("nan"),), loss_history=((),),

@@ -130,6 +130,8 @@ def test_step_nll_computes_fk_when_no_pose_given():
     assert torch.allclose(a, b)
     with pytest.raises(ValueError, match=r"landmarks must have shape \(2, 4, 4\)"):
         m.step_nll(q, None, lm[:1])
+    with pytest.raises(ValueError, match=r"landmarks are needed: the poses \(2, 4, 4\)"):
+        m.step_nll(q)
     picked = m.select_landmarks(["vase", "cup", "bowl"], torch.stack([2 * torch.eye(4, dtype=torch.float64),
                                                                       3 * torch.eye(4, dtype=torch.float64),
                                                                       torch.eye(4, dtype=torch.float64)]))

@@ -563,6 +563,22 @@ def test_progress_lines_without_quiet(synth_dir, tmp_path, capsys):
     assert any((tmp_path / "o" / "tensorboard").iterdir())
 
 
+def test_tensorboard_shows_every_features_spread_with_the_attitude(synth_dir, tmp_path, capsys):
+    """The final model's per-step standard deviations in TensorBoard name every feature: the
+    joints, the tool point and, with the attitude features, the gripper's two axes (they were left
+    out)."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    r = run_cli(*entry_point("train.py"), ["--task", "powder", "--demos", synth_dir, "--restarts", "1",
+                                           "--time-steps", "5", "--features", "attitude", "--quiet",
+                                           "--out", tmp_path / "o"], capsys)
+    assert r.returncode == 0, r.stderr
+    ev = EventAccumulator(str(tmp_path / "o" / "tensorboard"))
+    ev.Reload()
+    spreads = [t for t in ev.Tags()["scalars"] if t.startswith("features/std/")]
+    assert len(spreads) == 7 + 9 and "features/std/task_z" in spreads and "features/std/gripper_y_z" in spreads
+    assert len(ev.Scalars("features/std/gripper_x_x")) == 5
+
+
 @pytest.mark.parametrize("name", ["model.pt", "config.json"])
 def test_plan_model_given_a_file_asks_for_the_folder(tmp_path, capsys, name):
     d = tmp_path / "m"

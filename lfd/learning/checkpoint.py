@@ -315,14 +315,20 @@ class InterruptGuard:
 
     @contextmanager
     def critical(self):
+        """A block a signal does not cut: one that arrives inside raises ``Interrupted`` when the
+        block ends, unless the block failed: then its own error is the report (a checkpoint that
+        could not be written is not "interrupted, checkpoint saved")."""
         self._depth += 1
+        finished = False
         try:
             yield
+            finished = True
         finally:
             self._depth -= 1
             if self._depth == 0 and self._pending is not None:
                 signum, self._pending = self._pending, None
-                raise Interrupted(signum)
+                if finished:
+                    raise Interrupted(signum)
 
 
 def remove_checkpoint(folder: str | Path) -> None:

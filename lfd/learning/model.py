@@ -329,6 +329,9 @@ class TaskModel:
         return T[[names.index(n) for n in self.landmark_names]]
 
     def _landmarks(self, landmarks) -> torch.Tensor:
+        if landmarks is None:  # (torch.as_tensor(None) said only 'Could not infer dtype of NoneType')
+            raise ValueError(f"landmarks are needed: the poses ({len(self.landmark_names)}, 4, 4) of "
+                             f"{list(self.landmark_names)} (select_landmarks picks them by name)")
         T = torch.as_tensor(landmarks, dtype=self.dtype, device=self.device)
         if T.shape != (len(self.landmark_names), 4, 4):
             raise ValueError(f"landmarks must have shape ({len(self.landmark_names)}, 4, 4) for "
