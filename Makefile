@@ -26,9 +26,9 @@ test: lint
 test-all: lint
 	$(PY) -m pytest -q $(PYTEST_ARGS)
 
-# ruff on both packages, mypy on the library (ruff.toml, mypy.ini)
+# ruff on both packages, the scripts and the benchmarks, mypy on the library (ruff.toml, mypy.ini)
 lint: $(STAMP)
-	$(PY) -m ruff check lfd sim
+	$(PY) -m ruff check lfd sim benchmarks train.py plan.py setup.py
 	$(PY) -m mypy lfd
 
 bench: $(STAMP)

@@ -17,7 +17,7 @@ HERE = Path(__file__).resolve().parent
 def read_version() -> str:
     """``lfd.__version__``, parsed from ``lfd/__init__.py`` (importing lfd would need torch)."""
     text = (HERE / "lfd" / "__init__.py").read_text(encoding="utf-8")
-    match = re.search(r'^__version__\s*=\s*["\']([^"\']+)["\']', text, flags=re.M)
+    match = re.search(r'^__version__\s*=\s*["\']([^"\']+)["\']', text, flags=re.MULTILINE)
     if match is None:
         raise RuntimeError("lfd/__init__.py has no __version__ = '...' line")
     return match.group(1)

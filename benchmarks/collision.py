@@ -21,7 +21,7 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:  # run as a script: make the repository's packages importable
     sys.path.insert(0, str(REPO))
 
-from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir  # noqa: E402
+from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
 
 
 @dataclass(frozen=True)

@@ -26,11 +26,11 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir  # noqa: E402
-from lfd.robot.kinematics import KinematicModel  # noqa: E402
-from lfd.learning.learn import FitConfig, fit  # noqa: E402
-from lfd.learning.synthetic import make_synthetic  # noqa: E402
-from lfd.learning.tasks import task_from_name  # noqa: E402
+from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
+from lfd.learning.learn import FitConfig, fit
+from lfd.learning.synthetic import make_synthetic
+from lfd.learning.tasks import task_from_name
+from lfd.robot.kinematics import KinematicModel
 
 
 def task_demos(task: str, kin):

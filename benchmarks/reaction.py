@@ -110,8 +110,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.scenes < 1:
         raise UsageError(f"--scenes must be at least 1, got {args.scenes}")
-    from lfd.robot.kinematics import KinematicModel
     from lfd.learning.model import TaskModel
+    from lfd.robot.kinematics import KinematicModel
     from sim.evaluate import VARIANTS, ensure_model
     from sim.reach import DumpReach
     from sim.scenarios import draw_scenarios, with_bowl_move

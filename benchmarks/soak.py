@@ -26,7 +26,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir  # noqa: E402
+from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
 
 
 def rss_mb() -> float:
@@ -54,8 +54,8 @@ def main(argv=None) -> int:
 
     import torch
 
-    from lfd.robot.kinematics import KinematicModel
     from lfd.planning.task_planner import TaskPlanner, TaskPlannerSettings
+    from lfd.robot.kinematics import KinematicModel
     from sim import layout as L
     from sim.collision import make_collision_fns
     from sim.model_check import load_checked_model
