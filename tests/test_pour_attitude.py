@@ -79,7 +79,7 @@ def test_planned_pour_reaches_the_demonstrated_attitude():
     errors = []
     for k, place in enumerate(([0.72, 0.2, 0.0], [0.62, 0.35, 0.08], [0.83, 0.05, -0.08])):
         planner = TaskPlanner(model, lambda q: False, lambda a, b: False,
-                              settings=TaskPlannerSettings(n_vertices=400, seed=k))
+                              settings=TaskPlannerSettings(n_vertices=400, seed=k), dt=ds.demos[0].dt)
         bowl = np.eye(4)
         bowl[:3, 3] = place
         planner.update_landmarks(["bowl"], bowl[None])

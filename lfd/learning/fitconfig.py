@@ -12,16 +12,25 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from lfd.errors import UserInputError
 from lfd.learning.model import COVARIANCES, FEATURE_SETS, TaskModel
 from lfd.learning.tasks import check_stride, check_whole
 
-__all__ = ["DTYPES", "ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitResult", "SolverSettings"]
+__all__ = ["DTYPES", "ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitError", "FitResult",
+           "SolverSettings"]
 
 TOOL_MODES = ("learn", "gripper", "tip")
 ENV_MODES = ("learn", "bowl")
 M_STEPS = ("profile", "joint")
 INITS = ("reference", "random", "linear")
 DTYPES = {"float64": torch.float64, "float32": torch.float32}
+
+
+class FitError(UserInputError):
+    """The fit cannot give a model for these demonstrations and settings: too few samples for the
+    time steps, one demonstration for a learned environment landmark, a fixed landmark without
+    its task.json, every restart failed, a non-finite model. The message says which, and what to
+    change."""
 
 
 @dataclass(frozen=True)

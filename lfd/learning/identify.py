@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from lfd.learning.fitconfig import FitError
+
 __all__ = ["MIN_TURN", "check_learnable", "identifiability_notes", "rigidly_attached", "unobservable_axes"]
 
 MIN_TURN = 0.05  # rad (~3 deg): the least rms turn of a unit lever for a tool-point axis to count as seen
@@ -29,13 +31,13 @@ RIGID_SPREAD = (0.005, np.deg2rad(0.5))  # m, rad: a relative pose that varies l
 
 
 def check_learnable(demoset, cfg) -> None:
-    """``ValueError`` when the environment landmark is to be learned from one demonstration.
+    """``FitError`` when the environment landmark is to be learned from one demonstration.
 
     Also when its landmarks were tracked while they moved: measured on a handover-like set
     (``make_synthetic(landmark_motion=0.4)``, one demonstration), the weights came out 0.37,
     0.32, 0.32 and the tool point 27 cm off, so one is not enough there either."""
     if cfg.env == "learn" and len(demoset.demos) < 2 and len(demoset.landmark_names) > 1:
-        raise ValueError("learning the environment landmark needs at least 2 demonstrations: with one, every "
+        raise FitError("learning the environment landmark needs at least 2 demonstrations: with one, every "
                          "mixture of the landmarks explains it equally (give more demonstrations, or fix the "
                          "landmark: --env manual)")
 

@@ -44,7 +44,6 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
-from lfd.errors import UserInputError
 from lfd.learning.checkpoint import CheckpointError, FitProgress, config_record, demos_fingerprint
 from lfd.learning.dtw import (
     dwell_limits,
@@ -56,18 +55,12 @@ from lfd.learning.dtw import (
     reference_alignments,
 )
 from lfd.learning.em import EM_FAILURES, EMFitter, FitData
-from lfd.learning.fitconfig import DTYPES, ENV_MODES, INITS, M_STEPS, TOOL_MODES, FitConfig, FitResult
+from lfd.learning.fitconfig import DTYPES, ENV_MODES, INITS, M_STEPS, TOOL_MODES, FitConfig, FitError, FitResult
 from lfd.learning.identify import check_learnable, identifiability_notes
 from lfd.learning.model import TaskModel
 
 __all__ = ["ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitError", "FitResult", "fit",
            "initial_guesses", "restart_workers"]
-
-
-class FitError(UserInputError):
-    """The fit cannot give a model for these demonstrations and settings: too few samples for the
-    time steps, a fixed landmark without its task.json, every restart failed, a non-finite model.
-    The message says which, and what to change."""
 
 
 def _resolve(cfg: FitConfig):
