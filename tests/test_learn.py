@@ -519,3 +519,22 @@ def test_volume_prior_cancels_a_blend_of_rotations_for_every_transformed_vector(
     for a in (0.5, 0.8):
         blend = float(fi.profiled(tool, torch.tensor([a, 1.0 - a], dtype=torch.float64), t_idx))
         assert blend == pytest.approx(plain, abs=1e-6 * abs(plain)), (a, blend - plain)
+
+
+def test_the_joint_m_step_leaves_a_step_without_observations_as_its_copy(synth, kin):
+    """With skips permitted a step can be left without observations: ``eta_from`` copies the
+    nearest step's Gaussian there, and the joint polish keeps that copy (the floor prior alone saw
+    the step, and LBFGS sent its sigma_inv towards 0: a Gaussian that costs nothing anywhere)."""
+    ds, truth = synth
+    cfg = FitConfig(time_steps=T_STEPS, offsets=(0, 1, 2), solver=SolverSettings(m_step="joint", joint_max_iter=60))
+    _, fi = _fitter(ds, kin, cfg)
+    t_idx = torch.as_tensor(np.concatenate(truth.alignments))
+    t_idx = torch.where(t_idx == 3, torch.full_like(t_idx, 2), t_idx)  # nobody at step 3
+    tool = torch.tensor([0.01, 0.02, 0.1], dtype=torch.float64)
+    w = torch.full((len(ds.landmark_names),), 1.0 / len(ds.landmark_names), dtype=torch.float64)
+    mu, sigma_inv = fi.eta_from(tool, w, t_idx)
+    assert torch.equal(sigma_inv[3], sigma_inv[2]) or torch.equal(sigma_inv[3], sigma_inv[4])
+    _, _, mu2, si2 = fi.joint_polish(tool, w, mu, sigma_inv, t_idx, False, False)
+    assert torch.equal(mu2[3], mu[3]) and torch.equal(si2[3], sigma_inv[3])
+    assert not torch.equal(si2[2], sigma_inv[2])  # the observed steps were polished
+

@@ -276,7 +276,12 @@ class EMFitter:
 
         self._lbfgs(params, closure, self.cfg.solver.joint_max_iter)
         w = (w + self.B @ u).detach()
-        return tool_p.detach(), w - (w.sum() - 1) / self.Z, mu_p.detach(), build().detach()
+        mu_out, sigma_inv_out = mu_p.detach(), build().detach()
+        # a step no sample is aligned to keeps the copy eta_from gave it: only the floor prior
+        # sees it in the joint loss, which LBFGS lowers by sending its sigma_inv to 0
+        empty = torch.bincount(t_idx, minlength=self.T) == 0  # (T,)
+        mu_out[empty], sigma_inv_out[empty] = mu[empty], sigma_inv[empty]
+        return tool_p.detach(), w - (w.sum() - 1) / self.Z, mu_out, sigma_inv_out
 
     def final_eta(self, tool, w, mu, sigma_inv, align):
         """The model's Gaussians ``mu (T, F)``, ``sigma_inv (T, F, F)`` for the learned zeta and
