@@ -21,8 +21,9 @@ Every prior here is ``-2 log p`` up to a constant, so it adds directly to the lo
   vectors in an undistorted frame). It is zero when all landmark rotations agree (then
   ``A = (sum env) I = I``).
 * **Transitions**: ``p(t + o_k | t)`` are the observed frequencies in the current alignments,
-  each permitted one raised to at least ``floor`` and the row renormalized; offsets that would
-  leave the last step are forbidden (``log p = -inf``).
+  each permitted one raised to ``floor`` and the row renormalized, K times (K the offsets): an
+  entry raised ends at the floor less a hair of the renormalization (0.01 -> 0.009999 for two
+  offsets); offsets that would leave the last step are forbidden (``log p = -inf``).
 """
 
 from __future__ import annotations
@@ -54,12 +55,13 @@ def _permitted(time_steps: int, offsets) -> np.ndarray:
 
 def estimate_log_trans(alignments, time_steps: int, offsets, floor: float = 0.01,
                        dtype=torch.float64, device="cpu") -> torch.Tensor:
-    """Transition log-probabilities ``(T, K)`` from alignments, no permitted one below ``floor``."""
+    """Transition log-probabilities ``(T, K)`` from alignments, every permitted one at ``floor``
+    or above it, less the last renormalization's hair (module docstring)."""
     ok = _permitted(time_steps, offsets)
     counts = alignment_step_counts(alignments, time_steps, offsets) * ok
     total = counts.sum(1, keepdims=True)
     p = np.where(total > 0, counts / np.maximum(total, 1), ok / ok.sum(1, keepdims=True))
-    for _ in range(len(offsets)):  # raising and renormalizing converges in at most K rounds
+    for _ in range(len(offsets)):  # K rounds of raising and renormalizing
         p = np.where(ok, np.maximum(p, floor), 0.0)
         p = p / p.sum(1, keepdims=True)
     with np.errstate(divide="ignore"):
