@@ -38,8 +38,8 @@ def check_learnable(demoset, cfg) -> None:
     0.32, 0.32 and the tool point 27 cm off, so one is not enough there either."""
     if cfg.env == "learn" and len(demoset.demos) < 2 and len(demoset.landmark_names) > 1:
         raise FitError("learning the environment landmark needs at least 2 demonstrations: with one, every "
-                         "mixture of the landmarks explains it equally (give more demonstrations, or fix the "
-                         "landmark: --env manual)")
+                       "mixture of the landmarks explains it equally (give more demonstrations, or fix the "
+                       "landmark: --env manual)")
 
 
 def unobservable_axes(R: np.ndarray, min_turn: float = MIN_TURN) -> np.ndarray:

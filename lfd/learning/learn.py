@@ -206,8 +206,8 @@ def _check_inputs(demoset, cfg: FitConfig) -> None:
     if short:
         stride = f" after keeping 1 sample in {cfg.subsample} (FitConfig.subsample)" if cfg.subsample > 1 else ""
         raise FitError(f"demonstration(s) {short} have fewer than {need} samples{stride}, too few for "
-                         f"{cfg.time_steps} time steps with offsets {cfg.offsets} (fewer time steps, or offsets "
-                         "that may skip a step, e.g. train.py --offsets 0 1 2, need fewer)")
+                       f"{cfg.time_steps} time steps with offsets {cfg.offsets} (fewer time steps, or offsets "
+                       "that may skip a step, e.g. train.py --offsets 0 1 2, need fewer)")
     if (cfg.tool == "tip" or cfg.env == "bowl") and demoset.task is None:
         raise FitError(f"tool={cfg.tool!r}, env={cfg.env!r} need the demonstrations' task.json")
 
@@ -223,8 +223,8 @@ def _fixed_landmarks(demoset, cfg: FitConfig) -> tuple[tuple | None, np.ndarray 
         ref = demoset.task.reference_landmark
         if ref not in demoset.landmark_names:
             raise FitError(f"env='bowl' fixes the environment landmark to the task's reference_landmark "
-                             f"{ref!r} (task.json), which is not among the sensed landmarks "
-                             f"{list(demoset.landmark_names)}")
+                           f"{ref!r} (task.json), which is not among the sensed landmarks "
+                           f"{list(demoset.landmark_names)}")
         fixed_env = np.zeros(len(demoset.landmark_names))
         fixed_env[demoset.landmark_index(ref)] = 1.0
     return fixed_tool, fixed_env
