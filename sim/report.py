@@ -40,17 +40,20 @@ def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 
     far move (the roadmap's growth and the search on it), and ``reaction_ms`` a re-plan's
     landmark update (new step costs, new biased vertices after a far move) plus its search: the
     time from sensing a move to holding the new plan. Runs logged before the update was timed
-    have no ``build_ms``/``replan_update_ms`` and are left out of those two."""
-    init = [r["initial_ms"] for r in runs if not math.isnan(r["initial_ms"])]
-    rep = [x for r in runs for x in r["replan_ms"]]
+    have no ``build_ms``/``replan_update_ms`` and are left out of those two. A plan that was not
+    found (no path, unreachable: an answer, often at once) is no planning latency and is left out
+    of them all."""
+    init = [r["initial_ms"] for r in runs if not math.isnan(r["initial_ms"]) and _found(r)[0]]
+    rep = [x for r in runs for x, ok in zip(r["replan_ms"], _found(r)[1:]) if ok]
     build = [r["build_ms"] for r in runs if not math.isnan(r.get("build_ms", math.nan))]
     react, improve = [], []
     for r in runs:
         if len(r.get("replan_update_ms", ())) != len(r["replan_ms"]):
             continue  # logged before the update was timed
         kinds = r.get("replan_kind") or ["move"] * len(r["replan_ms"])
-        for kind, u, x in zip(kinds, r["replan_update_ms"], r["replan_ms"]):
-            (react if kind == "move" else improve).append(u + x)
+        for kind, u, x, ok in zip(kinds, r["replan_update_ms"], r["replan_ms"], _found(r)[1:]):
+            if ok:
+                (react if kind == "move" else improve).append(u + x)
     return {
         "tool_landmark": variant.label_tool, "env_landmark": variant.label_env,
         "success_rate": float(np.mean([r["success"] for r in runs])) if runs else math.nan,
@@ -70,13 +73,23 @@ def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 
     }
 
 
+def _found(r: dict) -> list[bool]:
+    """Whether each plan of run ``r`` was found: the first plan, then each re-plan (its
+    ``plan_statuses``; every one for a run logged without them)."""
+    statuses = r.get("plan_statuses")
+    if statuses is None:
+        return [True] * (1 + len(r["replan_ms"]))
+    return [st == "ok" for st in statuses]
+
+
 def _tilt_stats(runs: list[dict]) -> dict:
     """The tool's largest tilt against the demonstrations' mean (``sim.attitude``), over the runs
-    that have it: ``tilt_error_deg`` and ``planned_tilt_error_deg`` as ``{median, p95}`` of the
-    absolute error in degrees (what was reached, what was commanded), ``tilt_bias_deg`` the
-    median signed error (negative: tilted less than the demonstrator)."""
+    that have it and moved (a run without a first plan never tilted: its 0° is no tilt error):
+    ``tilt_error_deg`` and ``planned_tilt_error_deg`` as ``{median, p95}`` of the absolute error
+    in degrees (what was reached, what was commanded), ``tilt_bias_deg`` the median signed error
+    (negative: tilted less than the demonstrator)."""
     def errors(key):
-        return [r[key] for r in runs if r.get(key) is not None and math.isfinite(r[key])]
+        return [r[key] for r in runs if r.get(key) is not None and math.isfinite(r[key]) and _found(r)[0]]
 
     executed, planned = errors("tilt_error_deg"), errors("planned_tilt_error_deg")
     return {"tilt_error_deg": _stats(np.abs(executed)), "planned_tilt_error_deg": _stats(np.abs(planned)),

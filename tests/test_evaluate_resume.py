@@ -277,6 +277,23 @@ def test_summary_tilt_error_against_the_demonstrations():
     assert "6 / 11 deg" in report.format_table({v.name: s}, TASK)
 
 
+def test_plans_not_found_are_no_latency_and_runs_that_never_moved_no_tilt_error():
+    """A first plan that was not found leaves the run unmoved: its 0° tilt is not a tilt error, and
+    its answer's time is no planning latency; a re-plan not found is left out of the re-plan and
+    reaction times (an 'unreachable' comes back at once and pulled them towards 0)."""
+    v = next(x for x in ev.VARIANTS if x.name == "learned+learned")
+    moved = {**_row(v.name, 0), "plan_statuses": ["ok", "ok", "unreachable"], "replan_update_ms": [10.0, 30.0],
+             "replan_kind": ["move", "move"], "initial_ms": 100.0, "replan_ms": [50.0, 0.0],
+             "tilt_error_deg": -4.0, "planned_tilt_error_deg": -3.0}
+    stuck = {**_row(v.name, 1, success=False), "plan_statuses": ["no_path"], "initial_ms": 0.5, "replan_ms": [],
+             "replan_update_ms": [], "tilt_error_deg": -116.0, "planned_tilt_error_deg": -116.0}
+    s = report.summarize([moved, stuck], v, 1.0)
+    assert s["initial_ms"]["median"] == pytest.approx(100.0) and s["replan_ms"]["median"] == pytest.approx(50.0)
+    assert s["reaction_ms"]["median"] == pytest.approx(60.0) and s["reaction_ms"]["p95"] == pytest.approx(60.0)
+    assert s["tilt_error_deg"]["median"] == pytest.approx(4.0) and s["tilt_bias_deg"] == pytest.approx(-4.0)
+    assert s["success_rate"] == 0.5 and s["n_scenarios"] == 2  # the run still counts as a failure
+
+
 def test_missing_model_is_trained_with_the_learning_seed_not_the_scenario_seed(tmp_path, monkeypatch):
     """Tables of different base seeds must compare the same models: a variant trained on demand
     gets train.py's learning seed (0), whatever ``--seed`` draws the scenarios."""
