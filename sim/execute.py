@@ -14,10 +14,11 @@ landmarks; when a task-relevant one has moved more than ``replan_threshold`` the
 for a new plan. The plan takes ``latency`` of simulated time to arrive: "measured" charges the
 wall-clock time of the landmark update and the search, "none" none (the world is frozen while
 the planner works: deterministic tests), a number that many seconds. Meanwhile the robot goes on
-along its old plan (the bowl may already be elsewhere). The plan starts where the robot is
-expected to be when it arrives (the old plan's configuration and time step that far ahead: the
-landmark update's time, already spent, plus the last search's; with a fixed latency, that
-figure); it takes over when the robot gets there, or, if it arrives later than forecast, after
+along its old plan (the bowl may already be elsewhere). The plan starts at the first waypoint
+at or after where the robot is expected to be when it arrives (the old plan's configuration and
+time step that far ahead: the landmark update's time, already spent, plus the last search's; with
+a fixed latency, that figure): a new plan starts at rest, as the arm is at a waypoint, and one
+that took over in the middle of an edge stopped the arm dead. It takes over when the robot gets there, or, if it arrives later than forecast, after
 the robot retraces the waypoints it passed since (a motion it has just made). While a plan is on
 its way no new one is asked for. After a far move the landmark update answers on the current
 roadmap and the biased regrowth (``TaskPlanner.grow``) runs a round at a time, each round (a
@@ -351,7 +352,7 @@ class _ClosedLoop:
         elif not planner.grow(rounds=1):
             return  # the landmarks stayed near a place the roadmap was grown for
         update_s = time.perf_counter() - tic
-        pos = follow.predict(self._forecast(kind, update_s))
+        pos = follow.at_rest_after(follow.predict(self._forecast(kind, update_s)))  # it starts at rest
         res = planner.plan(follow.q_at(pos), follow.step_at(pos))
         wall = time.perf_counter() - tic
         self.search_s[kind] = res.latency_s

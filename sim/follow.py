@@ -70,6 +70,13 @@ class PlanFollower:
             i, t = i + 1, 0.0
         return i, t
 
+    def at_rest_after(self, pos) -> tuple[int, float]:
+        """The first waypoint at or after ``pos``: where a min-jerk plan is at rest. A new plan
+        starts at rest, so one that took over in the middle of an edge stopped the arm dead, from
+        up to ``speed * vmax`` to 0 in one simulation step."""
+        i, t = pos
+        return (i, 0.0) if t <= 0.0 or i >= len(self.segs) else (i + 1, 0.0)
+
     def elapsed_at(self, pos) -> float:
         """Time spent in the time step of ``pos`` when the robot is there."""
         i, t = pos
