@@ -19,7 +19,7 @@ from pathlib import Path
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
 from sim import require_pybullet
-from sim.scenarios import MAX_BASE_SEED, MAX_SCENARIO_SEED
+from sim.scenarios import MAX_BASE_SEED, MAX_SCENARIO_SEED, SEED_STRIDE
 from sim.sweep import EXECUTORS
 
 __all__ = ["PROG", "build_parser", "cli", "main", "parse"]
@@ -137,6 +137,9 @@ def parse(argv=None, prog: str = PROG):
             raise UsageError("--evaluate needs --task powder|pour")
         if args.scenarios < 1 or args.workers < 1:
             raise UsageError(f"--scenarios and --workers must be at least 1, got {args.scenarios}, {args.workers}")
+        if args.scenarios > SEED_STRIDE:
+            raise UsageError(f"--scenarios must be at most {SEED_STRIDE} (the seeds' stride between scenario "
+                             f"sets: more would give two sets the same scenes), got {args.scenarios}")
     elif args.model is None:
         raise UsageError("give --model DIR to plan once, or --evaluate --task TASK")
     elif args.model.is_file() or (args.model.suffix in (".pt", ".json") and not args.model.is_dir()):

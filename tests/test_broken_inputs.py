@@ -285,6 +285,7 @@ def _plan(capsys, *args):
     (("--evaluate", "--task", "powder", "--seed", "-3"), f"--seed must be in [0, {2**63 // 100_003 - 1})"),
     (("--evaluate", "--task", "powder", "--seed", str(10**41)), "--seed must be in"),
     (("--evaluate", "--task", "powder", "--demos", "/nonexistent/demos"), "--demos /nonexistent/demos: no such folder"),
+    (("--evaluate", "--task", "powder", "--scenarios", "100004"), "--scenarios must be at most 100003"),  # sets overlapped
 ])
 def test_plan_cli_checks_seeds_and_folders_first(args, fragment, capsys):
     _one_line_exit_2(_plan(capsys, *args), fragment)
