@@ -18,9 +18,9 @@ along its old plan (the bowl may already be elsewhere). The plan starts at the f
 at or after where the robot is expected to be when it arrives (the old plan's configuration and
 time step that far ahead: the landmark update's time, already spent, plus the last search's; with
 a fixed latency, that figure): a new plan starts at rest, as the arm is at a waypoint, and one
-that took over in the middle of an edge stopped the arm dead. It takes over when the robot gets there, or, if it arrives later than forecast, after
-the robot retraces the waypoints it passed since (a motion it has just made). While a plan is on
-its way no new one is asked for. After a far move the landmark update answers on the current
+that took over in the middle of an edge stopped the arm dead. It takes over when the robot gets
+there, or, if it arrives later than forecast, after the robot retraces the waypoints it passed
+since (a motion it has just made). While a plan is on its way no new one is asked for. After a far move the landmark update answers on the current
 roadmap and the biased regrowth (``TaskPlanner.grow``) runs a round at a time, each round (a
 fraction of a second to a second) followed by a re-plan at the next reading, charged the same way:
 the robot executes the first answer while the roadmap grows (anytime). Every re-plan is recorded: ``replan_kind`` ("move" or "growth"), ``replan_update_ms``

@@ -77,7 +77,7 @@ def _found(r: dict) -> list[bool]:
     """Whether each plan of run ``r`` was found: the first plan, then each re-plan (its
     ``plan_statuses``; every one for a run logged without them)."""
     statuses = r.get("plan_statuses")
-    if statuses is None:
+    if not statuses:
         return [True] * (1 + len(r["replan_ms"]))
     return [st == "ok" for st in statuses]
 
