@@ -38,7 +38,8 @@ class FitData:
 
     def __init__(self, demoset, kin, dtype, device, feature_set: str = "paper"):
         self.feature_set = feature_set
-        self.n_task = 3 * TASK_VECTORS[feature_set]  # task features after the joint angles
+        self.vectors = TASK_VECTORS[feature_set]  # the task features' 3-vectors (point, then axes)
+        self.n_task = 3 * self.vectors  # task features after the joint angles
         self.M = len(demoset.demos)
         self.lengths = [d.n_samples for d in demoset.demos]
         self.N = sum(self.lengths)
@@ -135,7 +136,7 @@ class EMFitter:
 
     # -- pieces of the objective
     def zeta_terms(self, tool, w, A):
-        out = (volume_prior(A, self.data.lm_counts, self.data.n_task // 3, self.s) if self.cfg.volume_prior
+        out = (volume_prior(A, self.data.lm_counts, self.data.vectors, self.s) if self.cfg.volume_prior
                else tool.new_zeros(()))
         excess = tool.norm() - self.cfg.tool_radius  # the tool point stays within the tool's size
         if bool(excess > 0):  # (inside it the objective is the paper's, to the bit)
