@@ -538,3 +538,28 @@ def test_the_joint_m_step_leaves_a_step_without_observations_as_its_copy(synth, 
     assert torch.equal(mu2[3], mu[3]) and torch.equal(si2[3], sigma_inv[3])
     assert not torch.equal(si2[2], sigma_inv[2])  # the observed steps were polished
 
+
+
+def test_an_em_stopped_by_its_iteration_limit_returns_the_alignment_its_model_was_fitted_on(synth, kin):
+    """Stopped before the alignments repeat, the fit's Gaussians, transitions and reported
+    alignments must all come from one alignment (they mixed the last two E-steps' before)."""
+    from lfd.learning.priors import estimate_log_trans
+    ds, _ = synth
+    cfg = FitConfig(time_steps=T_STEPS, restarts=1, seed=0, init="linear",
+                    solver=SolverSettings(max_em_iters=1, em_tol=0.0))
+    res = fit(ds, kin, cfg)
+    m = res.model
+    assert res.em_iterations[0] == 1
+    # the last E-step did move samples: otherwise this test could not tell the two apart
+    data, fi = _fitter(ds, kin, cfg)
+    keep = [ds.landmark_names.index(n) for n in m.landmark_names]
+    fi = EMFitter(data, cfg, torch.float64, torch.device("cpu"), keep)
+    new_align, _ = fi.e_step(m.tool, m.env, m.mu, m.sigma_inv, m.log_trans)
+    assert any(not np.array_equal(a, b) for a, b in zip(new_align, res.alignments))
+    ref = estimate_log_trans(list(res.alignments), T_STEPS, cfg.offsets, cfg.trans_floor, torch.float64,
+                             torch.device("cpu"))
+    assert torch.equal(m.log_trans, ref)
+    f, _ = data.features(m.tool, m.env, fi.T_lm)  # (N, F)
+    t_idx = np.concatenate(res.alignments)
+    for t in range(T_STEPS):
+        assert torch.allclose(m.mu[t], f[torch.as_tensor(t_idx == t)].mean(0), atol=1e-9), t

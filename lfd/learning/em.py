@@ -292,7 +292,7 @@ class EMFitter:
 
         zeta is learned with each its own block, where the tool point stays identifiable (in one
         block with the gripper's axes its offset ``A R tool`` would be absorbed by the regression);
-        the alignment (the EM's last E-step's, ``align``) and the transitions stay those of the EM,
+        the alignment (the one the EM's state was fitted on, ``align``) and the transitions stay the EM's,
         and ``FitResult.final_loss`` is the EM's loss."""
         if self.final_cov is self.cov:
             return mu, sigma_inv
@@ -328,7 +328,13 @@ class EMFitter:
         return float(out) / self.data.N
 
     def em(self, tool, w, align, learn_tool, learn_env, on_iter=None):
-        """Alternate M and E steps from an initial alignment; returns the state and loss history."""
+        """Alternate M and E steps from an initial alignment; returns the state and loss history.
+
+        The state ``(tool, w, mu, sigma_inv, log_trans, align)`` holds one alignment: the one its
+        parameters and transitions were fitted on. When the E-step repeats it, that is also the
+        E-step's; when the EM stops on ``em_tol`` or ``max_em_iters``, the last E-step's newer
+        alignment is dropped with it (the loss history, from that E-step's DTW values, is kept),
+        so a model's Gaussians, transitions and reported alignment always belong together."""
         history, state = [], None
         band = self.band_mask(align) if self.cfg.band is not None else None
         for it in range(self.cfg.solver.max_em_iters):
@@ -343,7 +349,7 @@ class EMFitter:
             if not math.isfinite(loss) or not all(torch.isfinite(x).all() for x in (tool, w, mu, sigma_inv)):
                 raise FloatingPointError(f"non-finite loss at EM iteration {it + 1}")
             history.append(loss)
-            state = (tool, w, mu, sigma_inv, log_trans, new_align)
+            state = (tool, w, mu, sigma_inv, log_trans, align)
             if on_iter is not None:
                 on_iter(it, loss, state)
             same = all(np.array_equal(a, b) for a, b in zip(align, new_align))
