@@ -32,7 +32,9 @@ def _stats(values) -> dict:
 
 def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 0) -> dict:
     """One variant's line of ``results.json`` (``variant``: a ``sim.evaluate.Variant``) from its
-    finished runs; ``crashed``: its runs that raised twice (not in the success rate).
+    finished runs; ``crashed``: its runs that raised twice. A crashed run is a scene the robot did
+    not do: it counts as a failure in ``success_rate`` and in ``n_scenarios`` (finished runs plus
+    crashed ones), and is left out of every other figure (it has none).
 
     Latencies, each ``{median, p95}`` in ms: ``initial_ms`` and ``replan_ms`` are the searches
     alone (the paper's planning latency); ``build_ms`` is the first landmark update (the
@@ -56,8 +58,9 @@ def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 
                 (react if kind == "move" else improve).append(u + x)
     return {
         "tool_landmark": variant.label_tool, "env_landmark": variant.label_env,
-        "success_rate": float(np.mean([r["success"] for r in runs])) if runs else math.nan,
-        "n_scenarios": len(runs),
+        "success_rate": sum(bool(r["success"]) for r in runs) / (len(runs) + crashed) if runs or crashed
+        else math.nan,
+        "n_scenarios": len(runs) + int(crashed),
         "crashed": int(crashed),
         "collisions": int(sum(bool(r["contacts"]) for r in runs)),
         "mean_fraction_in_bowl": float(np.mean([r["fraction_in_bowl"] for r in runs])) if runs else math.nan,
@@ -168,7 +171,7 @@ def format_table(results: dict, task: str, latency: str | None = None, cells: di
                  "tool's largest tilt against the demonstrations' mean, |median| / p95 in degrees")
     crashed = sum(v.get("crashed", 0) for v in results.values())
     if crashed:
-        lines.append(f"{crashed} run(s) crashed twice and are not counted: their errors are in runs.jsonl")
+        lines.append(f"{crashed} run(s) crashed twice and count as failures: their errors are in runs.jsonl")
     if latency is not None:
         lines.append(f"latency mode: {latency} (the simulated time each plan costs while the robot moves on)")
     return "\n".join(lines)

@@ -156,7 +156,10 @@ def test_crashed_runs_are_logged_counted_apart_and_run_again_on_resume(tmp_path,
     assert payload["crashed"] == [{"variant": "learned+learned", "demo_seed": 0, "scenario": bad,
                                    "error": "ValueError: the planner fell over"}]
     v = payload["variants"]["learned+learned"]
-    assert v["n_scenarios"] == 9 and v["crashed"] == 1
+    # a crashed run is a scene not done: a failure in the rate, not a smaller denominator
+    finished = v["scenarios"]  # the finished runs' scenes
+    assert v["n_scenarios"] == 10 and v["crashed"] == 1 and len(finished) == 9
+    assert v["success_rate"] == pytest.approx(sum(sc["success"] for sc in finished) / 10)
     assert "1 run(s) crashed twice" in format_table(payload["variants"], TASK)
     errors = [r for r in map(json.loads, (out / "runs.jsonl").read_text().splitlines()) if "error" in r]
     assert len(errors) == 1 and errors[0]["scenario"] == bad and errors[0]["attempts"] == 2
