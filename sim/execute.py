@@ -20,12 +20,15 @@ time step that far ahead: the landmark update's time, already spent, plus the la
 a fixed latency, that figure): a new plan starts at rest, as the arm is at a waypoint, and one
 that took over in the middle of an edge stopped the arm dead. It takes over when the robot gets
 there, or, if it arrives later than forecast, after the robot retraces the waypoints it passed
-since (a motion it has just made). While a plan is on its way no new one is asked for. After a far move the landmark update answers on the current
+since (a motion it has just made). While a plan is on its way no new one is asked for, and
+planner work that gave no plan (a re-plan that found none, a growth round that added no vertex)
+keeps the planner busy for its charged time just the same. After a far move the landmark update answers on the current
 roadmap and the biased regrowth (``TaskPlanner.grow``) runs a round at a time, each round (a
 fraction of a second to a second) followed by a re-plan at the next reading, charged the same way:
 the robot executes the first answer while the roadmap grows (anytime). Every re-plan is recorded: ``replan_kind`` ("move" or "growth"), ``replan_update_ms``
 (landmark update or growth), ``replan_ms`` (the search, ``PlanResult.latency_s``, what the paper
-reports), ``charged_ms`` (the simulated time it cost), and ``retraced`` waypoints. ``build_ms``
+reports), ``charged_ms`` (the simulated time it cost), and ``retraced`` waypoints; growth rounds
+that added no vertex (no re-plan followed) in ``idle_growth_ms``, the simulated time each cost. ``build_ms``
 is the first update (the roadmap's construction), before the first plan's ``initial_ms``; the
 arm holds at rest while the first plan is made. ``tracking_max_mm``: the largest distance of an
 arm frame or the tool point from where it was commanded; ``planned_tilt_deg`` and
@@ -120,6 +123,7 @@ class RunResult:
     n_replans: int = 0
     latency_mode: str = "none"  # ExecSettings.latency of the run
     charged_ms: list = field(default_factory=list)  # simulated time each re-plan took
+    idle_growth_ms: list = field(default_factory=list)  # simulated time of each growth round that added no vertex
     replan_kind: list = field(default_factory=list)  # each re-plan's cause: "move" or "growth" (anytime)
     replan_steps: list = field(default_factory=list)  # each re-plan's [task step asked at, step it starts from]
     switches: int = 0  # re-plans that arrived and took over
@@ -221,6 +225,7 @@ class _ClosedLoop:
         self.step = 0
         self.follow: PlanFollower | None = None
         self.pending: dict | None = None  # a plan on its way: {"arrive": sim step, "res", "pos": where it starts}
+        self.busy_until = 0  # sim step until which the planner works on something that gave no plan
         self.search_s: dict = {}  # the last search's time of each kind of re-plan
         self.planned_at: np.ndarray | None = None  # task landmark positions the current plan is for
         self.contacts: _ContactLog | None = None
@@ -244,12 +249,13 @@ class _ClosedLoop:
             else:
                 self.q_cmd, self.qdot = self.follow.advance()
             self._sim_step()
-            if self.step % sense_every or self.pending is not None:
+            if self.step % sense_every:
                 continue
             if not moved and self.follow.step_at(self.follow.position) >= self.scenario.move_at_step:
-                world.move_object("bowl", self.scenario.bowl_after)
+                world.move_object("bowl", self.scenario.bowl_after)  # the world's event: the planner's state is no matter
                 moved = True
-            self._sense()
+            if self.pending is None and self.step >= self.busy_until:  # the planner is free to sense
+                self._sense()
         _settle_and_judge(world, self.contacts, result, s, self.step, self.frames)
         return result
 
@@ -349,8 +355,11 @@ class _ClosedLoop:
         tic = time.perf_counter()
         if kind == "move":
             planner.update_landmarks(names, poses, grow=self.s.latency == "none")
-        elif not planner.grow(rounds=1):
-            return  # the landmarks stayed near a place the roadmap was grown for
+        elif not planner.grow(rounds=1):  # the round found no new vertex: no re-plan, but its time passed
+            charged = charged_s(self.s.latency, time.perf_counter() - tic)
+            result.idle_growth_ms.append(charged * 1e3)
+            self.busy_until = self.step + int(round(charged / L.SIM_DT))
+            return
         update_s = time.perf_counter() - tic
         pos = follow.at_rest_after(follow.predict(self._forecast(kind, update_s)))  # it starts at rest
         res = planner.plan(follow.q_at(pos), follow.step_at(pos))
@@ -367,6 +376,8 @@ class _ClosedLoop:
         result.charged_ms.append(charged * 1e3)
         if res.ok:
             self.pending = {"arrive": self.step + int(round(charged / L.SIM_DT)), "res": res, "pos": pos}
+        else:  # nothing to take over; the next reading comes once the planner is free again
+            self.busy_until = self.step + int(round(charged / L.SIM_DT))
 
 
 def _settle_and_judge(world, contacts: _ContactLog, result: RunResult, s: ExecSettings, step: int,

@@ -1,0 +1,85 @@
+"""The closed loop's clock (``sim.execute``): planner work is charged in simulated time even
+when it gives no plan. A scripted planner in a real PyBullet world, so the timing is exact."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("pybullet")
+from lfd.planning.planner import PlanResult  # noqa: E402
+from lfd.robot.kinematics import KinematicModel  # noqa: E402
+from sim import layout as L  # noqa: E402
+from sim.execute import ExecSettings, execute_plan  # noqa: E402
+
+LATENCY_S = 0.5  # a fixed latency: every piece of planner work costs exactly this much simulated time
+
+
+class _CountingWorld:
+    """The real world, with the physics steps counted (the executor's clock, seen from outside)."""
+
+    def __init__(self, world):
+        self._world, self.steps = world, 0
+
+    def step(self, n=1):
+        self.steps += n
+        self._world.step(n)
+
+    def __getattr__(self, name):
+        return getattr(self._world, name)
+
+
+class _ScriptedPlanner:
+    """A first plan along three far waypoints; then, as after a far bowl move, growth is always
+    pending but a round adds no vertex ('idle'), or it adds one and the re-plan finds no path
+    ('no path'). Records the world's step at each call."""
+
+    def __init__(self, world: _CountingWorld, kin, mode: str):
+        self.world, self.mode, self.kin = world, mode, kin
+        self.model = SimpleNamespace(kin=kin, tool=torch.zeros(3, dtype=torch.float64), landmark_names=("bowl",))
+        self.dt = 0.1
+        self.growth_pending = False
+        self.calls: list[int] = []
+
+    def update_landmarks(self, names, poses, grow=True):
+        pass
+
+    def keypoints(self, Q):
+        return np.zeros((len(Q), 1, 3))
+
+    def grow(self, rounds=None):
+        self.calls.append(self.world.steps)
+        return self.mode == "no path"
+
+    def plan(self, q, step):
+        home = np.asarray(L.HOME_Q, dtype=float)
+        if not self.calls:  # the first plan
+            self.growth_pending = True
+            Q = np.stack([home, home + [0.4, 0, 0, 0, 0, 0, 0], home + [0.4, 0, 0.4, 0, 0, 0, 0], home])
+            return PlanResult("ok", Q, np.array([0, 1, 2, 3]), np.arange(4), 1.0, 0, 0.001)
+        empty = np.zeros((0, 7))
+        return PlanResult("no_path", empty, np.zeros(0, int), np.zeros(0, int), np.inf, 0, 0.001, message="none")
+
+
+@pytest.mark.parametrize("mode", ["idle", "no path"])
+def test_planner_work_without_a_plan_is_charged_in_simulated_time(make_world, mode):
+    """Growth rounds that add no vertex, and re-plans that find no path, used to cost no
+    simulated time: the planner sensed again 0.1 s later while the robot had not moved on.
+    Now the next reading waits until the work's charged latency has passed."""
+    world = _CountingWorld(make_world("powder", n_particles=0))
+    planner = _ScriptedPlanner(world, KinematicModel.from_spec(), mode)
+    s = ExecSettings(latency=LATENCY_S, pace="fastest", settle_s=0.0)
+    result = execute_plan(world, planner, settings=s)
+    calls = planner.calls
+    assert len(calls) >= 3, f"the plan lasted {result.duration_s:.2f} s: too short to see the clock"
+    gaps_s = np.diff(calls) * L.SIM_DT
+    assert gaps_s.min() >= LATENCY_S - 1e-9, gaps_s  # was the sensing period, 0.1 s
+    assert gaps_s.max() <= LATENCY_S + s.sense_period + 1e-9, gaps_s  # sensed again once free
+    if mode == "idle":
+        assert result.n_replans == 0 and result.idle_growth_ms == [LATENCY_S * 1e3] * len(calls)
+    else:
+        assert result.n_replans == len(calls) and result.plan_statuses[1:] == ["no_path"] * len(calls)
+        assert result.charged_ms == [LATENCY_S * 1e3] * len(calls) and result.idle_growth_ms == []
