@@ -75,7 +75,7 @@ def bench_scene(model, task: str, scenario) -> dict:
         if not first.ok or scenario.bowl_after is None:
             return out
         # where the first plan has the robot when the bowl moves (the executor's sensing instant)
-        i = int(np.searchsorted(first.time_steps, scenario.move_at_step))
+        i = int(np.searchsorted(first.time_steps, scenario.move_step(model.time_steps)))
         i = min(i, len(first.time_steps) - 1)
         q, t = first.configurations[i], int(first.time_steps[i])
         world.move_object("bowl", scenario.bowl_after)
@@ -122,9 +122,8 @@ def main(argv=None) -> int:
     model = TaskModel.load(model_dir)
     model.kin = KinematicModel.from_spec(model.robot, dtype=model.dtype)
     scenes = []
-    T = model.mu.shape[0]
     with DumpReach(args.task) as reach:  # the pour's scenes keep the bowl still: give them a move
-        drawn = [with_bowl_move(sc, T, reach) for sc in draw_scenarios(args.task, args.scenes, args.seed, T, reach)]
+        drawn = [with_bowl_move(sc, reach) for sc in draw_scenarios(args.task, args.scenes, args.seed, reach)]
     for k, sc in enumerate(drawn):
         row = bench_scene(model, args.task, sc)
         scenes.append(row)

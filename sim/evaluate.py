@@ -316,9 +316,8 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     learn_s = {key: sm.get("learning_time_s", math.nan) for key, sm in summaries.items()}
     sets = {S: draw_scenarios(settings.task, settings.n_scenarios, S) for S in settings.seeds}
     if settings.move_bowl:
-        T = _time_steps(summaries)
         with DumpReach(settings.task) as reach:
-            sets = {S: [with_bowl_move(sc, T, reach) for sc in scs] for S, scs in sets.items()}
+            sets = {S: [with_bowl_move(sc, reach) for sc in scs] for S, scs in sets.items()}
     wanted = {(v.name, k, sc.seed) for v in variants for k in settings.demo_seeds for scs in sets.values() for sc in scs}
     base_of = {sc.seed: S for S, scs in sets.items() for sc in scs}
     executor = make_executor(settings.executor, settings.workers, settings.address, initializer=init_worker)
@@ -371,18 +370,6 @@ def _read_summary(path: Path) -> dict:
     if not isinstance(rec, dict):
         raise UsageError(f"{path}: a training summary is a JSON object, got {type(rec).__name__}")
     return rec
-
-
-def _time_steps(summaries: dict) -> int:
-    """The time steps ``T`` the models share (``summaries``: each model's ``summary.json`` by
-    (variant, demonstration draw)); a bowl move comes at T/4."""
-    found = {key: sm.get("time_steps") for key, sm in summaries.items()}
-    missing = [key for key, T in found.items() if not isinstance(T, int)]
-    if missing:
-        raise UsageError(f"cannot read the time steps of the model(s) {missing} (summary.json)")
-    if len(set(found.values())) != 1:
-        raise UsageError(f"a bowl move needs models with the same time steps, got {found}")
-    return next(iter(found.values()))
 
 
 def _gif_path(out_dir: Path, task: str, variant: str, scenario: int) -> Path:

@@ -239,7 +239,7 @@ class _ClosedLoop:
         if not self._first_plan():
             return result
         sense_every = max(1, int(round(s.sense_period / L.SIM_DT)))
-        moved = self.scenario is None or self.scenario.bowl_after is None
+        move_step = None if self.scenario is None else self.scenario.move_step(self.planner.model.time_steps)
         assert self.follow is not None  # set by _first_plan
         while not self.follow.done or self.pending is not None:
             if self._take_over_arrived_plan():
@@ -251,9 +251,9 @@ class _ClosedLoop:
             self._sim_step()
             if self.step % sense_every:
                 continue
-            if not moved and self.follow.step_at(self.follow.position) >= self.scenario.move_at_step:
+            if move_step is not None and self.follow.step_at(self.follow.position) >= move_step:
                 world.move_object("bowl", self.scenario.bowl_after)  # the world's event: the planner's state is no matter
-                moved = True
+                move_step = None
             if self.pending is None and self.step >= self.busy_until:  # the planner is free to sense
                 self._sense()
         _settle_and_judge(world, self.contacts, result, s, self.step, self.frames)

@@ -10,8 +10,9 @@ Drawing rule (also stated in the README):
 * the **lamp shade** hangs above the carrying line (a uniform fraction ``[0.3, 0.8]`` of the
   way, 5 cm sideways at most), its lower rim ``LAMP_BOTTOM_RANGE`` above the table: the
   height through which the arm lifts and carries the tool;
-* ``powder``: the bowl moves during the task (when the executed time step reaches
-  ``move_at_step`` = T/4, while the spoon is being carried towards it, before the dump) to a second uniform place in the square at least ``MIN_MOVE`` away;
+* ``powder``: the bowl moves during the task (when the executed time step reaches a quarter of
+  the model's T steps, ``MOVE_AT``, while the spoon is being carried towards it, before the
+  dump) to a second uniform place in the square at least ``MIN_MOVE`` away;
   the four distractor markers are uniform in the square, lifted ``layout.MARKER_HEIGHT...``;
 * ``pour``: the vase, the scissors, the spoon and the (landmark) paper-towel roll are the
   other sensed landmarks; vase and scissors/spoon are uniform in the square; the bowl stays
@@ -31,6 +32,7 @@ seed ``S`` uses seed ``S * 100_003 + i``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -59,6 +61,7 @@ __all__ = [
 
 MIN_BOWL_SOURCE = 0.30       # m, bowl centre to source container centre
 MIN_MOVE = 0.20              # m, how far the bowl moves in the powder closed-loop test
+MOVE_AT = 0.25               # the share of the task's time steps after which it moves (the spoon is being carried)
 CLEARANCE = 0.10             # m, free gap between an obstacle's and the bowl's / source's outline
 LAMP_BOTTOM_RANGE = (0.42, 0.55)  # m above the table top: at the height of the elbow and upper arm
 MAX_TRIES = 10_000
@@ -76,20 +79,32 @@ class Scenario:
     ``placements``: object name -> ``(x, y)`` on the table or ``(x, y, z)`` base position.
     ``bowl_after``: where the bowl moves (``powder``; the reaction benchmark gives the pour's
     scenes one too, ``with_bowl_move``), applied when the executed time step reaches
-    ``move_at_step``; None for no move.
+    ``move_at`` times the model's time steps T (a share of the task, so that one scene means the
+    same moment for models of any T: ``move_step``); None for no move.
     """
 
     task: str
     seed: int
     placements: dict = field(default_factory=dict)
     bowl_after: tuple | None = None
-    move_at_step: int | None = None
+    move_at: float | None = None
+
+    def __post_init__(self):
+        if (self.move_at is None) != (self.bowl_after is None):
+            raise ValueError("a scenario's bowl_after and move_at are given together or not at all")
+        if self.move_at is not None and not 0.0 <= self.move_at < 1.0:
+            raise ValueError(f"move_at is a share of the task in [0, 1), got {self.move_at}")
+
+    def move_step(self, time_steps: int) -> int | None:
+        """The time step (of a model with ``time_steps`` steps) at which the bowl moves; None
+        without a move."""
+        return None if self.move_at is None else int(math.floor(self.move_at * time_steps + 1e-9))
 
     def to_dict(self) -> dict:
         return {"task": self.task, "seed": self.seed,
                 "placements": {k: [float(x) for x in v] for k, v in self.placements.items()},
                 "bowl_after": None if self.bowl_after is None else [float(x) for x in self.bowl_after],
-                "move_at_step": self.move_at_step}
+                "move_at": self.move_at}
 
 
 def _in_square(rng) -> np.ndarray:
@@ -119,7 +134,7 @@ def _bowl_move_ok(after, bowl, source) -> bool:
     return bool(np.linalg.norm(after - bowl) >= MIN_MOVE and np.linalg.norm(after - source) >= MIN_BOWL_SOURCE)
 
 
-def draw_scenario(task: str, seed: int, time_steps: int = 24, reach=None) -> Scenario:
+def draw_scenario(task: str, seed: int, reach=None) -> Scenario:
     """The scenario of ``(task, seed)``; see the module docstring for the rule.
 
     ``reach``: a ``sim.reach.DumpReach`` of ``task`` to reuse (one is made and closed here when
@@ -130,7 +145,7 @@ def draw_scenario(task: str, seed: int, time_steps: int = 24, reach=None) -> Sce
     if reach is None:
         from sim.reach import DumpReach
         with DumpReach(task) as own:
-            return draw_scenario(task, seed, time_steps, own)
+            return draw_scenario(task, seed, own)
     if reach.task != task:
         raise ValueError(f"reach checks the {reach.task!r} task, not {task!r}")
     rng = np.random.default_rng(seed)
@@ -178,34 +193,34 @@ def draw_scenario(task: str, seed: int, time_steps: int = 24, reach=None) -> Sce
             continue
         return Scenario(task=task, seed=int(seed), placements=placements,
                         bowl_after=None if bowl_after is None else tuple(bowl_after),
-                        move_at_step=(time_steps // 4) if bowl_after is not None else None)
+                        move_at=MOVE_AT if bowl_after is not None else None)
     raise RuntimeError(f"could not draw a solvable {task} scenario for seed {seed}")
 
 
-def draw_scenarios(task: str, n: int, base_seed: int = 0, time_steps: int = 24, reach=None) -> list[Scenario]:
+def draw_scenarios(task: str, n: int, base_seed: int = 0, reach=None) -> list[Scenario]:
     """``n`` scenarios of a set with ``base_seed`` (``reach``: as in ``draw_scenario``)."""
     if n < 1:
         raise ValueError(f"the number of scenarios must be at least 1, got {n}")
     if reach is None:
         from sim.reach import DumpReach
         with DumpReach(task) as own:
-            return draw_scenarios(task, n, base_seed, time_steps, own)
-    return [draw_scenario(task, base_seed * SEED_STRIDE + i, time_steps, reach) for i in range(n)]
+            return draw_scenarios(task, n, base_seed, own)
+    return [draw_scenario(task, base_seed * SEED_STRIDE + i, reach) for i in range(n)]
 
 
-def with_bowl_move(scenario: Scenario, time_steps: int = 24, reach=None) -> Scenario:
+def with_bowl_move(scenario: Scenario, reach=None) -> Scenario:
     """``scenario`` with a mid-task bowl move when it has none (the pour's evaluation scenes keep
     the bowl still; the reaction benchmark moves it in both tasks): a second place drawn as the
     powder's (uniform in the square, at least ``MIN_MOVE`` away, ``MIN_BOWL_SOURCE`` from the
     source container), ``CLEARANCE`` from every object on the table, where the arm can hold the
-    tool over the bowl (``reach``, a ``sim.reach.DumpReach`` of the task), at step T/4. Seeded by
+    tool over the bowl (``reach``, a ``sim.reach.DumpReach`` of the task), at ``MOVE_AT`` of the task. Seeded by
     the scenario's seed (its own stream): the same scenario always gets the same move."""
     if scenario.bowl_after is not None:
         return scenario
     if reach is None:
         from sim.reach import DumpReach
         with DumpReach(scenario.task) as own:
-            return with_bowl_move(scenario, time_steps, own)
+            return with_bowl_move(scenario, own)
     if reach.task != scenario.task:
         raise ValueError(f"reach checks the {reach.task!r} task, not {scenario.task!r}")
     rng = np.random.default_rng([int(scenario.seed), 1])
@@ -220,5 +235,5 @@ def with_bowl_move(scenario: Scenario, time_steps: int = 24, reach=None) -> Scen
                 and reach(scenario.placements, after)):
             continue
         return Scenario(task=scenario.task, seed=scenario.seed, placements=dict(scenario.placements),
-                        bowl_after=tuple(after), move_at_step=time_steps // 4)
+                        bowl_after=tuple(after), move_at=MOVE_AT)
     raise RuntimeError(f"could not draw a bowl move for the {scenario.task} scenario of seed {scenario.seed}")

@@ -13,7 +13,7 @@ from sim.scenarios import SEED_STRIDE, Scenario
 SLEEP_S = 0.15
 
 
-def draw(task: str, n: int, base_seed: int = 0, time_steps: int = 24, reach=None) -> list[Scenario]:
+def draw(task: str, n: int, base_seed: int = 0, reach=None) -> list[Scenario]:
     """``n`` scenarios of base seed ``base_seed`` with the real seeds and a placeholder scene."""
     return [Scenario(task=task, seed=base_seed * SEED_STRIDE + i, placements={"bowl": (0.8, 0.3)})
             for i in range(n)]

@@ -36,7 +36,7 @@ def _scenario(bowl, obstacles=None, bowl_after=None, seed=0) -> Scenario:
     for i, xy in enumerate(((0.50, 0.0), (1.15, 0.0), (1.15, 0.70), (0.50, 0.55)), start=1):
         placements[f"marker_{i}"] = (*xy, L.TABLE_TOP_Z + L.MARKER_HEIGHT_ABOVE_TABLE)
     return Scenario(task="powder", seed=seed, placements=placements, bowl_after=bowl_after,
-                    move_at_step=6 if bowl_after is not None else None)
+                    move_at=0.25 if bowl_after is not None else None)
 
 
 BOWL = (L.SQUARE_CENTER_XY[0] + 0.10, L.SQUARE_CENTER_XY[1] - 0.10)
@@ -119,7 +119,7 @@ def test_a_slow_planner_misses_the_moved_bowl_and_a_fast_one_does_not(model_dir)
     lets the robot dump where the bowl was, one that takes 0.2 s (or a frozen world) does not."""
     from dataclasses import replace
     after = (BOWL[0] - 0.25, BOWL[1] + 0.2)
-    sc = replace(_scenario(BOWL, bowl_after=after), move_at_step=10)
+    sc = replace(_scenario(BOWL, bowl_after=after), move_at=10 / 24)
     runs = {lat: run_one("powder", sc, LEARNED, str(model_dir), ROADMAP, latency=lat) for lat in ("none", "0.2", "2.0")}
     assert runs["none"]["success"] and runs["0.2"]["success"], (runs["none"]["reason"], runs["0.2"]["reason"])
     assert runs["0.2"]["charged_ms"] and all(c == 200.0 for c in runs["0.2"]["charged_ms"])

@@ -29,10 +29,10 @@ N = 3
 
 
 @functools.lru_cache(maxsize=None)
-def _drawn(task: str, n: int, base_seed: int = 0, time_steps: int = 24) -> tuple:
+def _drawn(task: str, n: int, base_seed: int = 0) -> tuple:
     """``draw_scenarios`` once per set: the draw checks every scene's reachability in PyBullet,
     seconds per scene, and these tests only need the scenes' seeds."""
-    return tuple(draw_scenarios(task, n, base_seed, time_steps))
+    return tuple(draw_scenarios(task, n, base_seed))
 
 
 @pytest.fixture(autouse=True)

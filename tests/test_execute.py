@@ -22,11 +22,15 @@ class _CountingWorld:
     """The real world, with the physics steps counted (the executor's clock, seen from outside)."""
 
     def __init__(self, world):
-        self._world, self.steps = world, 0
+        self._world, self.steps, self.moves = world, 0, []
 
     def step(self, n=1):
         self.steps += n
         self._world.step(n)
+
+    def move_object(self, name, xy):
+        self.moves.append((name, self.steps))
+        self._world.move_object(name, xy)
 
     def __getattr__(self, name):
         return getattr(self._world, name)
@@ -37,12 +41,14 @@ class _ScriptedPlanner:
     pending but a round adds no vertex ('idle'), or it adds one and the re-plan finds no path
     ('no path'). Records the world's step at each call."""
 
-    def __init__(self, world: _CountingWorld, kin, mode: str):
+    def __init__(self, world: _CountingWorld, kin, mode: str, time_steps: int = 4):
         self.world, self.mode, self.kin = world, mode, kin
-        self.model = SimpleNamespace(kin=kin, tool=torch.zeros(3, dtype=torch.float64), landmark_names=("bowl",))
+        self.model = SimpleNamespace(kin=kin, tool=torch.zeros(3, dtype=torch.float64), landmark_names=("bowl",),
+                                     time_steps=time_steps)
         self.dt = 0.1
         self.growth_pending = False
         self.calls: list[int] = []
+        self.planned = False
 
     def update_landmarks(self, names, poses, grow=True):
         pass
@@ -56,10 +62,11 @@ class _ScriptedPlanner:
 
     def plan(self, q, step):
         home = np.asarray(L.HOME_Q, dtype=float)
-        if not self.calls:  # the first plan
-            self.growth_pending = True
+        if not self.planned:  # the first plan: its waypoints spread over the model's steps
+            self.planned, self.growth_pending = True, self.mode != "still"
             Q = np.stack([home, home + [0.4, 0, 0, 0, 0, 0, 0], home + [0.4, 0, 0.4, 0, 0, 0, 0], home])
-            return PlanResult("ok", Q, np.array([0, 1, 2, 3]), np.arange(4), 1.0, 0, 0.001)
+            T = self.model.time_steps
+            return PlanResult("ok", Q, np.array([0, T // 3, 2 * T // 3, T - 1]), np.arange(4), 1.0, 0, 0.001)
         empty = np.zeros((0, 7))
         return PlanResult("no_path", empty, np.zeros(0, int), np.zeros(0, int), np.inf, 0, 0.001, message="none")
 
@@ -83,3 +90,28 @@ def test_planner_work_without_a_plan_is_charged_in_simulated_time(make_world, mo
     else:
         assert result.n_replans == len(calls) and result.plan_statuses[1:] == ["no_path"] * len(calls)
         assert result.charged_ms == [LATENCY_S * 1e3] * len(calls) and result.idle_growth_ms == []
+
+
+def test_a_scenes_bowl_move_comes_at_its_share_of_the_models_time_steps(make_world):
+    """A scene says when its bowl moves as a share of the task (``Scenario.move_at``): half-way
+    is step 12 of a 24-step model and step 24 of a 48-step one, the same moment of the same plan
+    (a fixed step, 12, came a waypoint earlier in the 48-step model's)."""
+    from sim.scenarios import Scenario
+
+    kin = KinematicModel.from_spec()
+    base = make_world("powder", n_particles=0)
+    bowl = tuple(base.sensed_landmarks()[1][0][:2, 3])
+    s = ExecSettings(latency="none", pace="fastest", settle_s=0.0, max_replans=0)
+    moved_at = {}
+    for share in (0.2, 0.5):
+        sc = Scenario(task="powder", seed=0, placements={}, bowl_after=(bowl[0] - 0.1, bowl[1]), move_at=share)
+        for T in (24, 48, 240):
+            world = _CountingWorld(base)
+            world.move_object("bowl", bowl)  # back in place before the run
+            world.moves.clear()
+            execute_plan(world, _ScriptedPlanner(world, kin, "still", time_steps=T), sc, s)
+            assert [name for name, _ in world.moves] == ["bowl"]
+            moved_at[share, T] = world.moves[0][1]
+    for share in (0.2, 0.5):  # the plan's waypoints sit at steps 0, T/3, 2T/3, T - 1
+        assert moved_at[share, 24] == moved_at[share, 48] == moved_at[share, 240], moved_at
+    assert moved_at[0.2, 24] < moved_at[0.5, 24], moved_at

@@ -55,13 +55,13 @@ def test_powder_scenarios_follow_the_drawing_rule(powder):
         lamp = np.asarray(sc.placements["lamp_shade"])
         assert _dist_to_line(lamp[:2], source, bowl) <= 0.05 + 1e-9
         assert LAMP_BOTTOM_RANGE[0] <= lamp[2] - L.TABLE_TOP_Z <= LAMP_BOTTOM_RANGE[1]
-        assert sc.move_at_step == 24 // 4
+        assert sc.move_at == 0.25 and sc.move_step(24) == 6 and sc.move_step(48) == 12 and sc.move_step(25) == 6
         assert sum(k.startswith("marker_") for k in sc.placements) == 4
 
 
 def test_pour_scenarios_place_the_other_landmarks_and_do_not_move_the_bowl():
     sc = draw_scenario("pour", 0)
-    assert sc.bowl_after is None and sc.move_at_step is None
+    assert sc.bowl_after is None and sc.move_at is None and sc.move_step(48) is None
     assert {"bowl", "paper_towels", "lamp_shade", "vase", "scissors", "spoon"} <= set(sc.placements)
 
 
@@ -75,9 +75,9 @@ def test_a_pour_scene_gets_a_bowl_move_by_the_powders_rule_and_a_powder_scene_ke
     with DumpReach("pour") as reach:
         for seed in (0, 1):
             sc = draw_scenario("pour", seed, reach=reach)
-            moved = with_bowl_move(sc, 24, reach)
-            assert moved.to_dict() == with_bowl_move(sc, 24, reach).to_dict()  # seeded by the scene
-            assert moved.placements == sc.placements and moved.move_at_step == 6
+            moved = with_bowl_move(sc, reach)
+            assert moved.to_dict() == with_bowl_move(sc, reach).to_dict()  # seeded by the scene
+            assert moved.placements == sc.placements and moved.move_at == 0.25
             after, bowl = np.asarray(moved.bowl_after), np.asarray(sc.placements["bowl"])
             assert _in_square(after) and np.linalg.norm(after - bowl) >= MIN_MOVE
             assert np.linalg.norm(after - source) >= MIN_BOWL_SOURCE
@@ -86,7 +86,7 @@ def test_a_pour_scene_gets_a_bowl_move_by_the_powders_rule_and_a_powder_scene_ke
                 assert np.linalg.norm(after - np.asarray(sc.placements[name][:2])) >= r + bowl_r + CLEARANCE - 1e-9
             assert reach(sc.placements, after)
         with pytest.raises(ValueError, match="reach checks the 'pour' task"):
-            with_bowl_move(Scenario(task="powder", seed=0, placements=dict(sc.placements)), 24, reach)
+            with_bowl_move(Scenario(task="powder", seed=0, placements=dict(sc.placements)), reach)
 
 
 def test_dump_reach_refuses_a_bowl_under_a_low_obstacle_and_accepts_it_in_the_open(reach):

@@ -116,30 +116,21 @@ def test_grid_cells_spread_and_table(tmp_path, models, fakes, monkeypatch):
         ev.evaluate(_settings(demo_seeds=(3,)), tmp_path / "eval2", models, demos=tmp_path)
 
 
-def test_a_bowl_move_comes_at_a_quarter_of_the_models_time_steps(tmp_path, models, fakes, monkeypatch):
-    """``--move-bowl``: every scenario gets a move (a stand-in for ``with_bowl_move``) at T/4 of
-    the models' time steps (their ``summary.json``), the runs are logged with the setting, and
-    models without their time steps or disagreeing on them are refused."""
-    seen = []
-
-    def fake_move(sc, T, reach):
-        seen.append(T)
-        return replace(sc, bowl_after=(0.7, 0.2), move_at_step=T // 4)
+def test_a_bowl_move_is_given_to_every_scenario_and_logged(tmp_path, models, fakes, monkeypatch):
+    """``--move-bowl``: every scenario gets a move (a stand-in for ``with_bowl_move``), at a
+    share of the task that each run turns into its own model's time step (models of different T
+    share the scenes), and the runs are logged with the setting."""
+    def fake_move(sc, reach):
+        return replace(sc, bowl_after=(0.7, 0.2), move_at=0.25)
 
     monkeypatch.setattr(ev, "with_bowl_move", fake_move)
     monkeypatch.setattr(ev, "DumpReach", lambda task: contextlib.nullcontext(None))
     both = ("learned+learned", "learned+manual")
-    with pytest.raises(UsageError, match="time steps"):  # no summary.json yet
-        ev.evaluate(_settings(move_bowl=True, variants=both), tmp_path / "e1", models)
-    for v, T in zip(ev.VARIANTS[:2], (48, 24)):
-        (ev.model_dir_for(models, v) / "summary.json").write_text(json.dumps({"time_steps": T}))
-    with pytest.raises(UsageError, match="same time steps"):
-        ev.evaluate(_settings(move_bowl=True, variants=both), tmp_path / "e2", models)
-    payload = ev.evaluate(_settings(move_bowl=True, seeds=(0,)), tmp_path / "eval", models)
-    assert seen == [48] * 5 and payload["move_bowl"] is True
-    assert [(sc["move_at_step"], sc["bowl_after"]) for sc in payload["scenario_set"]] == [(12, [0.7, 0.2])] * 5
+    payload = ev.evaluate(_settings(move_bowl=True, seeds=(0,), variants=both), tmp_path / "eval", models)
+    assert payload["move_bowl"] is True
+    assert [(sc["move_at"], sc["bowl_after"]) for sc in payload["scenario_set"]] == [(0.25, [0.7, 0.2])] * 5
     rows = [json.loads(line) for line in (tmp_path / "eval" / "runs.jsonl").read_text().splitlines()]
-    assert len(rows) == 5 and all(r["settings"]["move_bowl"] is True for r in rows)
+    assert len(rows) == 10 and all(r["settings"]["move_bowl"] is True for r in rows)
 
 
 def test_crashed_runs_are_logged_counted_apart_and_run_again_on_resume(tmp_path, models, fakes, monkeypatch):
