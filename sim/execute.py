@@ -252,7 +252,7 @@ class _ClosedLoop:
             if self.step % sense_every:
                 continue
             if move_step is not None and self.follow.step_at(self.follow.position) >= move_step:
-                world.move_object("bowl", self.scenario.bowl_after)  # the world's event: the planner's state is no matter
+                world.move_object("bowl", self.scenario.bowl_after)  # the world's event, busy planner or not
                 move_step = None
             if self.pending is None and self.step >= self.busy_until:  # the planner is free to sense
                 self._sense()

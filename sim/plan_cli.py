@@ -184,7 +184,7 @@ def main(argv=None, prog: str = PROG) -> int:
                            cells=payload["spread"] if len(payload["cells"]) > 1 else None))
         print(f"wall time {time.perf_counter() - tic:.0f} s, executor {settings.executor}")
         print(f"results: {out / 'results.json'}")
-        if payload["crashed"]:  # the table holds the others; these have no result at all
+        if payload["crashed"]:  # failures in the table, but with no result of their own
             print(f"{prog}: {len(payload['crashed'])} run(s) crashed twice (their errors: 'crashed' in "
                   f"{out / 'results.json'}); run the same command with --resume to run them again",
                   file=sys.stderr)

@@ -101,8 +101,8 @@ def _tilt_stats(runs: list[dict]) -> dict:
 
 def spread(cells: list[dict]) -> dict:
     """``{variant: {mean, sd, min, max, cells}}`` of the success rates over ``cells`` (each
-    ``{"variants": {name: summary}}``; cells without runs of a variant are left out; ``sd`` is the
-    sample standard deviation, NaN for one cell)."""
+    ``{"variants": {name: summary}}``; cells without runs of a variant are left out, a cell whose
+    runs all crashed counts at 0%; ``sd`` is the sample standard deviation, NaN for one cell)."""
     names = {n for c in cells for n in c["variants"]}
     out = {}
     for name in sorted(names):

@@ -33,6 +33,7 @@ seed ``S`` uses seed ``S * 100_003 + i``.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -51,6 +52,7 @@ __all__ = [
     "MAX_BASE_SEED",
     "MAX_SCENARIO_SEED",
     "MIN_BOWL_SOURCE",
+    "MOVE_AT",
     "SEED_STRIDE",
     "SOURCE_RADIUS",
     "Scenario",
@@ -92,12 +94,14 @@ class Scenario:
     def __post_init__(self):
         if (self.move_at is None) != (self.bowl_after is None):
             raise ValueError("a scenario's bowl_after and move_at are given together or not at all")
-        if self.move_at is not None and not 0.0 <= self.move_at < 1.0:
+        if self.move_at is not None and not 0.0 <= self.move_at < 1.0:  # (NaN too)
             raise ValueError(f"move_at is a share of the task in [0, 1), got {self.move_at}")
 
     def move_step(self, time_steps: int) -> int | None:
         """The time step (of a model with ``time_steps`` steps) at which the bowl moves; None
         without a move."""
+        if isinstance(time_steps, bool) or not isinstance(time_steps, numbers.Integral) or time_steps < 1:
+            raise ValueError(f"time_steps must be a whole number >= 1, got {time_steps!r}")
         return None if self.move_at is None else int(math.floor(self.move_at * time_steps + 1e-9))
 
     def to_dict(self) -> dict:

@@ -115,3 +115,26 @@ def test_a_scenes_bowl_move_comes_at_its_share_of_the_models_time_steps(make_wor
     for share in (0.2, 0.5):  # the plan's waypoints sit at steps 0, T/3, 2T/3, T - 1
         assert moved_at[share, 24] == moved_at[share, 48] == moved_at[share, 240], moved_at
     assert moved_at[0.2, 24] < moved_at[0.5, 24], moved_at
+
+
+def test_the_bowl_moves_on_time_while_the_planner_is_busy(make_world):
+    """The scripted move is the world's: it comes at the same simulated moment whether the
+    planner is idle or busy (re-plans that find no path, each 0.5 s of simulated time)."""
+    from sim.scenarios import Scenario
+
+    kin = KinematicModel.from_spec()
+    base = make_world("powder", n_particles=0)
+    bowl = tuple(base.sensed_landmarks()[1][0][:2, 3])
+    sc = Scenario(task="powder", seed=0, placements={}, bowl_after=(bowl[0] - 0.1, bowl[1]), move_at=0.5)
+    s = ExecSettings(latency=LATENCY_S, pace="fastest", settle_s=0.0)
+    moved_at, busy = {}, {}
+    for mode in ("still", "no path"):
+        world = _CountingWorld(base)
+        world.move_object("bowl", bowl)
+        world.moves.clear()
+        planner = _ScriptedPlanner(world, kin, mode, time_steps=24)
+        execute_plan(world, planner, sc, s)
+        moved_at[mode], busy[mode] = world.moves[0][1], planner.calls
+    busy_steps = int(round(LATENCY_S / L.SIM_DT))
+    assert any(c < moved_at["no path"] <= c + busy_steps for c in busy["no path"]), (busy, moved_at)  # mid-work
+    assert moved_at["still"] == moved_at["no path"]

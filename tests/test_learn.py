@@ -539,7 +539,6 @@ def test_the_joint_m_step_leaves_a_step_without_observations_as_its_copy(synth, 
     assert not torch.equal(si2[2], sigma_inv[2])  # the observed steps were polished
 
 
-
 def test_an_em_stopped_by_its_iteration_limit_returns_the_alignment_its_model_was_fitted_on(synth, kin):
     """Stopped before the alignments repeat, the fit's Gaussians, transitions and reported
     alignments must all come from one alignment (they mixed the last two E-steps' before)."""

@@ -103,6 +103,18 @@ def test_bad_scenario_arguments(reach):
         draw_scenario("soup", 0)
     with pytest.raises(ValueError, match="reach checks the 'powder' task"):
         draw_scenario("pour", 0, reach=reach)
+    with pytest.raises(ValueError, match="bowl_after and move_at are given together"):
+        Scenario(task="powder", seed=0, bowl_after=(0.8, 0.3))
+    with pytest.raises(ValueError, match="bowl_after and move_at are given together"):
+        Scenario(task="powder", seed=0, move_at=0.25)
+    for bad in (-0.1, 1.0, float("nan")):
+        with pytest.raises(ValueError, match="move_at is a share of the task"):
+            Scenario(task="powder", seed=0, bowl_after=(0.8, 0.3), move_at=bad)
+    sc = Scenario(task="powder", seed=0, bowl_after=(0.8, 0.3), move_at=0.5)
+    assert sc.move_step(np.int64(24)) == 12 and sc.move_step(1) == 0
+    for bad in (0, 2.5, True):
+        with pytest.raises(ValueError, match="time_steps must be a whole number"):
+            sc.move_step(bad)
 
 
 def test_a_scene_whose_objects_touch_the_arms_start_is_not_drawn():

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import signal
 import subprocess
@@ -21,7 +22,7 @@ import pytest
 import sim.evaluate as ev
 import sweep_fakes
 from lfd.cli import UsageError
-from sim.report import format_table
+from sim.report import format_table, summarize
 from sim.sweep import Job, LocalExecutor, run_jobs
 
 TESTS = Path(__file__).resolve().parent
@@ -151,6 +152,8 @@ def test_crashed_runs_are_logged_counted_apart_and_run_again_on_resume(tmp_path,
     finished = v["scenarios"]  # the finished runs' scenes
     assert v["n_scenarios"] == 10 and v["crashed"] == 1 and len(finished) == 9
     assert v["success_rate"] == pytest.approx(sum(sc["success"] for sc in finished) / 10)
+    every_run_crashed = summarize([], ev.VARIANTS[0], math.nan, crashed=2)
+    assert every_run_crashed["success_rate"] == 0.0 and every_run_crashed["n_scenarios"] == 2
     assert "1 run(s) crashed twice" in format_table(payload["variants"], TASK)
     errors = [r for r in map(json.loads, (out / "runs.jsonl").read_text().splitlines()) if "error" in r]
     assert len(errors) == 1 and errors[0]["scenario"] == bad and errors[0]["attempts"] == 2

@@ -249,7 +249,7 @@ class FitResult:
     model: TaskModel
     loss_history: tuple[tuple[float, ...], ...]  # per restart, then each refit after pruning
     em_iterations: tuple[int, ...]
-    final_loss: float
+    final_loss: float  # the model's parameters at their best alignment (the EM's last E-step's)
     restart_losses: tuple[float, ...]  # nan for a dropped restart
     best_restart: int
     kept_landmarks: tuple[str, ...]

@@ -388,7 +388,7 @@ def _prune_and_refit(data: FitData, cfg: FitConfig, names, fixed_env, log: _Rest
                                         _emitter(callback, "refit", best_r, tuple(names[i] for i in kept)))
             except EM_FAILURES as e:
                 raise FitError(f"refit after pruning to {[names[i] for i in kept]} failed: {e}") from e
-            tool, w, *_, align = state  # the next round starts where this refit ended
+            tool, w, *_, align = state  # the next round starts from this refit's zeta and its alignment
             log.histories.append(tuple(hist))
             log.iters.append(len(hist))
             final_loss = hist[-1]
