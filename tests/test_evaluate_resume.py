@@ -252,13 +252,16 @@ def test_summary_reaction_times_only_from_timed_runs():
     assert s["reaction_ms"]["median"] == pytest.approx(23.5)  # 13, 34
     assert s["build_ms"]["median"] == pytest.approx(7.0)
     assert s["reaction_ms"]["p95"] == pytest.approx(13 + 0.95 * (34 - 13))
+    assert s["reaction_ms"]["mean"] == pytest.approx(23.5) and s["replan_ms"]["mean"] == pytest.approx(2.5)
     # a run whose update times do not pair with its searches is left out of the reaction
     odd = {**_row(v.name, 2), "replan_update_ms": [5.0], "build_ms": 1.0}
     assert report.summarize([new, odd], v, 1.0)["reaction_ms"]["median"] == pytest.approx(23.5)
     only_old = report.summarize([old], v, 1.0)
     assert math.isnan(only_old["reaction_ms"]["median"]) and math.isnan(only_old["build_ms"]["median"])
     table = report.format_table({v.name: s, "old": only_old}, TASK)
-    assert "24ms" in table and table.splitlines()[-2].split()[-2:] == ["-", "-"]  # no reaction, no tilt
+    assert "24ms" in table and table.splitlines()[-2].split()[-3:] == ["-", "-", "-"]  # no reaction, mean, tilt
+    new_line = next(line for line in table.splitlines() if line.startswith("Learned"))
+    assert new_line.split()[-3:-1] == ["24ms", "24ms"]  # the reaction's median and mean (13, 34 ms)
 
 
 def test_summary_tilt_error_against_the_demonstrations():
