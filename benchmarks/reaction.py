@@ -53,8 +53,9 @@ def _summary(values) -> dict:
             "n": int(len(v))}
 
 
-def bench_scene(model, task: str, scenario) -> dict:
-    """One scene: build, initial plan, bowl move and reaction, growth and improved plan."""
+def bench_scene(model, task: str, scenario, roadmap_size: int | None = None) -> dict:
+    """One scene: build, initial plan, bowl move and reaction, growth and improved plan
+    (``roadmap_size``: the roadmap's vertices, None for the task's default)."""
     from lfd.planning.task_planner import TaskPlanner
     from sim import layout as L
     from sim.collision import make_collision_fns
@@ -64,7 +65,7 @@ def bench_scene(model, task: str, scenario) -> dict:
     with World(task, scenario=scenario.placements, n_particles=0) as world:
         fns = make_collision_fns(world, obstacles=True)
         planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn, batch_collision_fn=fns.batch_collision_fn,
-                              settings=planner_settings(None, scenario.seed, task, model.tool))
+                              settings=planner_settings(roadmap_size, scenario.seed, task, model.tool))
         names, poses = world.sensed_landmarks()
         tic = time.perf_counter()
         planner.update_landmarks(names, poses)
@@ -106,10 +107,15 @@ def main(argv=None) -> int:
     ap.add_argument("--scenes", type=int, default=50, help="scenarios (default 50)")
     ap.add_argument("--seed", type=int, default=0, help="base seed of the scenario set")
     ap.add_argument("--models", type=Path, default=None, help="trained variants (default runs/<task>/models)")
+    ap.add_argument("--roadmap-size", type=int, default=None,
+                    help="roadmap vertices (default: the planner's for the task's time steps, as lfd-plan)")
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "bench" / "reaction.json")
     args = ap.parse_args(argv)
     if args.scenes < 1:
         raise UsageError(f"--scenes must be at least 1, got {args.scenes}")
+    from sim.plan_cli import MAX_ROADMAP
+    if args.roadmap_size is not None and not 10 <= args.roadmap_size <= MAX_ROADMAP:
+        raise UsageError(f"--roadmap-size must be in [10, {MAX_ROADMAP}], got {args.roadmap_size}")
     from lfd.learning.model import TaskModel
     from lfd.robot.kinematics import KinematicModel
     from sim.evaluate import VARIANTS, ensure_model
@@ -126,14 +132,14 @@ def main(argv=None) -> int:
     with DumpReach(args.task) as reach:  # the pour's scenes keep the bowl still: give them a move
         drawn = [with_bowl_move(sc, reach) for sc in draw_scenarios(args.task, args.scenes, args.seed, reach)]
     for k, sc in enumerate(drawn):
-        row = bench_scene(model, args.task, sc)
+        row = bench_scene(model, args.task, sc, args.roadmap_size)
         scenes.append(row)
         r = row.get("reaction", {})
         print(f"[{k + 1}/{args.scenes}] scenario {sc.seed}: build {row['build_s']:.1f} s, initial "
               f"{row['initial']['plan_s'] * 1e3:.0f} ms, reaction "
               f"{r.get('total_s', float('nan')) * 1e3:.0f} ms ({r.get('status', '-')})", flush=True)
     summary = {
-        "model": str(model_dir), "n_scenes": len(scenes), "base_seed": args.seed,
+        "model": str(model_dir), "n_scenes": len(scenes), "base_seed": args.seed, "roadmap_size": args.roadmap_size,
         "reaction_s": _summary([s.get("reaction", {}).get("total_s") for s in scenes]),
         "initial_s": _summary([s["initial"]["plan_s"] for s in scenes]),
         "improve_s": _summary([s.get("improve", {}).get("total_s") for s in scenes]),
