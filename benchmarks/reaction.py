@@ -16,7 +16,7 @@ Writes ``runs/bench/reaction.json``: ``tasks.<task>.reaction_s`` and ``initial_s
 ``{median, p95, mean}`` over scenes), ``improve_s``, ``growth_s``, ``build_s``, and every scene's plans.
 
     .venv/bin/python benchmarks/reaction.py [--task powder|pour] [--scenes 50] [--seed 0]
-        [--models runs/<task>/models]
+        [--models runs/<task>/models] [--roadmap-size N]
 
 A missing learned model is trained first (``sim.evaluate.ensure_model``, learning seed 0).
 """
