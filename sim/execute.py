@@ -294,7 +294,7 @@ class _ClosedLoop:
         if not res.ok:
             result.reason = f"no initial plan: {res.status} ({res.message})"
             return False
-        for _ in range(int(round(charged_s(self.s.latency, res.latency_s) / L.SIM_DT))):
+        for _ in range(self._charged_steps(res.latency_s)):
             self._sim_step()  # the arm holds while the first plan is made (the roadmap was built before)
         self.planned_at = _relevant(names, poses, self.keep)
         self.follow = self._timed(res.configurations, res.time_steps)
@@ -339,6 +339,10 @@ class _ClosedLoop:
         self.planned_at = now
         self._replan("move", names, poses)
 
+    def _charged_steps(self, wall_s: float) -> int:
+        """Simulation steps that planner work of ``wall_s`` wall-clock seconds costs the world."""
+        return int(round(charged_s(self.s.latency, wall_s) / L.SIM_DT))
+
     def _forecast(self, kind: str, spent_s: float) -> float:
         """Seconds from now until a plan being made (``spent_s`` of it done) arrives."""
         if self.s.latency == "none":
@@ -356,9 +360,9 @@ class _ClosedLoop:
         if kind == "move":
             planner.update_landmarks(names, poses, grow=self.s.latency == "none")
         elif not planner.grow(rounds=1):  # the round found no new vertex: no re-plan, but its time passed
-            charged = charged_s(self.s.latency, time.perf_counter() - tic)
-            result.idle_growth_ms.append(charged * 1e3)
-            self.busy_until = self.step + int(round(charged / L.SIM_DT))
+            idle_s = time.perf_counter() - tic
+            result.idle_growth_ms.append(charged_s(self.s.latency, idle_s) * 1e3)
+            self.busy_until = self.step + self._charged_steps(idle_s)
             return
         update_s = time.perf_counter() - tic
         pos = follow.at_rest_after(follow.predict(self._forecast(kind, update_s)))  # it starts at rest
@@ -372,12 +376,12 @@ class _ClosedLoop:
         result.replan_ms.append(res.latency_s * 1e3)
         result.plan_statuses.append(res.status)
         result.edges_evaluated.append(res.n_edges_evaluated)
-        charged = charged_s(self.s.latency, wall)
-        result.charged_ms.append(charged * 1e3)
+        result.charged_ms.append(charged_s(self.s.latency, wall) * 1e3)
+        done_at = self.step + self._charged_steps(wall)
         if res.ok:
-            self.pending = {"arrive": self.step + int(round(charged / L.SIM_DT)), "res": res, "pos": pos}
+            self.pending = {"arrive": done_at, "res": res, "pos": pos}
         else:  # nothing to take over; the next reading comes once the planner is free again
-            self.busy_until = self.step + int(round(charged / L.SIM_DT))
+            self.busy_until = done_at
 
 
 def _settle_and_judge(world, contacts: _ContactLog, result: RunResult, s: ExecSettings, step: int,
