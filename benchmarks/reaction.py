@@ -56,16 +56,14 @@ def _summary(values) -> dict:
 def bench_scene(model, task: str, scenario, roadmap_size: int | None = None) -> dict:
     """One scene: build, initial plan, bowl move and reaction, growth and improved plan
     (``roadmap_size``: the roadmap's vertices, None for the task's default)."""
-    from lfd.planning.task_planner import TaskPlanner
     from sim import layout as L
     from sim.collision import make_collision_fns
-    from sim.runner import planner_settings
+    from sim.runner import scene_planner
     from sim.world import World
 
     with World(task, scenario=scenario.placements, n_particles=0) as world:
         fns = make_collision_fns(world, obstacles=True)
-        planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn, batch_collision_fn=fns.batch_collision_fn,
-                              settings=planner_settings(roadmap_size, scenario.seed, task, model.tool))
+        planner = scene_planner(model, fns, task, roadmap_size, scenario.seed)
         names, poses = world.sensed_landmarks()
         tic = time.perf_counter()
         planner.update_landmarks(names, poses)

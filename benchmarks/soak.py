@@ -71,7 +71,7 @@ def main(argv=None) -> int:
     with World(scenario.task, scenario=scenario.placements, n_particles=0) as world:
         fns = make_collision_fns(world)
         planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn,
-                              batch_collision_fn=fns.batch_collision_fn,
+                              batch_collision_fn=fns.hit_fn,
                               settings=TaskPlannerSettings(n_vertices=args.roadmap_size, seed=args.seed))
         names, poses = world.sensed_landmarks()
         bowl = names.index("bowl")

@@ -7,6 +7,10 @@ collide, which bodies are obstacles -- and returns closures:
   against the robot's other links and against non-adjacent arm links), the table and the
   obstacles;
 * ``batch_collision_fn(Q (B, 7)) -> (B,) bool``;
+* ``hit_fn(Q (B, 7)) -> (B,) str``: what each configuration hits, ``""`` where free: ``"limits"``,
+  ``"self"``, ``"table"`` or a scene object's name (the first found), the planner's
+  ``batch_collision_fn`` (``lfd.planning.roadmap.Roadmap.hits``: an object that moves away then
+  frees only the edges it blocked);
 * ``segment_fn(q1, q2) -> bool``: the straight joint-space segment, interpolated so that no
   joint moves more than ``resolution`` rad and no point of the arm or tool moves more than
   ``max_travel`` (default ``2 * (OBSTACLE_MARGIN - TRACKING_ALLOWANCE)``) between checked configurations, checked in
@@ -92,6 +96,7 @@ class CollisionFns:
     collision_fn: Callable[[np.ndarray], bool]
     batch_collision_fn: Callable[[np.ndarray], np.ndarray]
     segment_fn: Callable[[np.ndarray, np.ndarray], bool]
+    hit_fn: Callable[[np.ndarray], np.ndarray]
     resolution: float
     obstacles: bool
     method: str
@@ -127,20 +132,20 @@ def _overlap(a: np.ndarray, b: np.ndarray, pad: float = 0.0) -> np.ndarray:
     return ((a[..., 0, :] - pad <= b[..., 1, :]) & (b[..., 0, :] <= a[..., 1, :] + pad)).all(axis=-1)
 
 
-def _too_close(client, robot, moving, link_boxes, bodies, body_boxes) -> bool:
-    """Whether a moving link comes within ``OBSTACLE_MARGIN`` of a scene body: exact distances
-    (``getClosestPoints``) for the (link, body) pairs whose AABBs ``(M, 2, 3)``, ``(E, 2, 3)``
-    are that close. (Contact points from ``performCollisionDetection`` are no substitute: Bullet
+def _too_close(client, robot, moving, link_boxes, bodies, body_boxes) -> int:
+    """The first scene body (its index in ``bodies``, -1 for none) a moving link comes within
+    ``OBSTACLE_MARGIN`` of: exact distances (``getClosestPoints``) for the (link, body) pairs
+    whose AABBs ``(M, 2, 3)``, ``(E, 2, 3)`` are that close. (Contact points from ``performCollisionDetection`` are no substitute: Bullet
     reports positive-distance points for some shape pairs only, e.g. not for a finger's box
     0.9 mm from a cylinder, which a run then touched.)"""
     if not len(bodies):
-        return False
+        return -1
     near = _overlap(link_boxes[:, None], body_boxes[None], OBSTACLE_MARGIN)  # (M, E)
     for i, e in zip(*np.nonzero(near)):
         pts = p.getClosestPoints(robot, bodies[e], OBSTACLE_MARGIN, moving[i], -1, physicsClientId=client)
         if any(pt[8] < OBSTACLE_MARGIN for pt in pts):
-            return True
-    return False
+            return int(e)
+    return -1
 
 
 def _inplace_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
@@ -155,10 +160,11 @@ def _inplace_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
     def env_boxes():
         """Obstacle bodies ``(E,)`` and their AABBs ``(E, 2, 3)``, cached per scene version."""
         if cache["version"] != world.scene_version:
-            bodies = [world.table] + [world.objects[n] for n in _obstacle_names(world, obstacles, ignore)]
-            cache.update(version=world.scene_version, bodies=bodies,
+            names = ["table"] + _obstacle_names(world, obstacles, ignore)
+            bodies = [world.table] + [world.objects[n] for n in names[1:]]
+            cache.update(version=world.scene_version, bodies=bodies, names=names,
                          aabbs=np.array([p.getAABB(b, -1, physicsClientId=client) for b in bodies]))
-        return cache["bodies"], cache["aabbs"]
+        return cache["bodies"], cache["aabbs"], cache["names"]
 
     @contextlib.contextmanager
     def restored():
@@ -173,7 +179,7 @@ def _inplace_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
         pts = p.getClosestPoints(robot, robot, 0.0, link_a, link_b, physicsClientId=client)
         return any(pt[8] < 0.0 for pt in pts)
 
-    def check_here(q) -> bool:
+    def check_here(q) -> str:
         # one call for all joints: a single forward-kinematics update (7x faster than a loop)
         p.resetJointStatesMultiDof(robot, joints, [[v] for v in q.tolist()], physicsClientId=client)
         moving_aabbs = np.array([p.getAABB(robot, k, physicsClientId=client) for k in moving])  # (M, 2, 3)
@@ -181,9 +187,10 @@ def _inplace_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
         A, B = moving_aabbs[pair_a], boxes[pair_b]                                              # (P, 2, 3)
         for k in np.flatnonzero(_overlap(A, B)):
             if hits(pairs[k][0], pairs[k][1]):
-                return True
-        bodies, env = env_boxes()
-        return _too_close(client, robot, moving, moving_aabbs, bodies, env)
+                return "self"
+        bodies, env, names = env_boxes()
+        e = _too_close(client, robot, moving, moving_aabbs, bodies, env)
+        return names[e] if e >= 0 else ""
 
     return check_here, restored, lambda: None
 
@@ -248,19 +255,20 @@ def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
                 bodies[name] = _scene_body(shadow, assets.BUILDERS[name][0](shadow))
             pos, quat = p.getBasePositionAndOrientation(world.objects[name], physicsClientId=world.client)
             p.resetBasePositionAndOrientation(bodies[name], pos, quat, physicsClientId=shadow)
-        cache.update(version=world.scene_version, bodies=list(bodies.values()),
+        cache.update(version=world.scene_version, bodies=list(bodies.values()), names=list(bodies),
                      boxes=np.array([p.getAABB(b, -1, physicsClientId=shadow) for b in bodies.values()]))
 
-    def check_here(q) -> bool:
+    def check_here(q) -> str:
         sync()
         p.resetJointStatesMultiDof(robot, joints, [[v] for v in q.tolist()], physicsClientId=shadow)
         p.performCollisionDetection(physicsClientId=shadow)
         for pt in p.getContactPoints(robot, robot, physicsClientId=shadow):
             # (flag, bodyA, bodyB, linkA, linkB, ..., distance at 8): self collision is a touch
             if pt[8] < 0.0 and (pt[3] in moving_set or pt[4] in moving_set):
-                return True
+                return "self"
         link_boxes = np.array([p.getAABB(robot, k, physicsClientId=shadow) for k in moving])  # (M, 2, 3)
-        return _too_close(shadow, robot, moving, link_boxes, cache["bodies"], cache["boxes"])
+        e = _too_close(shadow, robot, moving, link_boxes, cache["bodies"], cache["boxes"])
+        return cache["names"][e] if e >= 0 else ""
 
     closed = []
 
@@ -323,19 +331,23 @@ def make_collision_fns(world, obstacles: bool = True, resolution: float = 0.05, 
         if not within(q):
             return True
         with restored():
-            return check_here(q)
+            return check_here(q) != ""
 
-    def batch_collision_fn(Q) -> np.ndarray:
-        """``Q (B, 7) -> (B,) bool``."""
+    def hit_fn(Q) -> np.ndarray:
+        """``Q (B, 7) -> (B,) str``: what each configuration hits, ``""`` where free."""
         Q = np.asarray(Q, dtype=float)
         if Q.ndim != 2 or Q.shape[1] != dof:
             raise ValueError(f"Q must have shape (B, {dof}), got {Q.shape}")
         ok = np.all((Q >= lower) & (Q <= upper), axis=1)
-        out = ~ok
+        out = np.where(ok, "", "limits").astype(object)
         with restored():
             for i in np.flatnonzero(ok):
                 out[i] = check_here(Q[i])
-        return out
+        return out.astype(str)
+
+    def batch_collision_fn(Q) -> np.ndarray:
+        """``Q (B, 7) -> (B,) bool``."""
+        return hit_fn(Q) != ""
 
     def segment_fn(q1, q2) -> bool:
         """True when the straight segment ``q1 -> q2`` leaves the limits or collides."""
@@ -348,7 +360,7 @@ def make_collision_fns(world, obstacles: bool = True, resolution: float = 0.05, 
             n = max(n, int(math.ceil(float(np.linalg.norm(levers * dq)) / max_travel)))
         with restored():
             for k in bisection_order(n):
-                if check_here(q1 + (q2 - q1) * (k / n)):
+                if check_here(q1 + (q2 - q1) * (k / n)) != "":
                     return True
         return False
 
@@ -356,5 +368,5 @@ def make_collision_fns(world, obstacles: bool = True, resolution: float = 0.05, 
     # and no longer than the world
     weakref.finalize(check_here, close)
     world.on_close(close)
-    return CollisionFns(collision_fn, batch_collision_fn, segment_fn, float(resolution), bool(obstacles), method,
+    return CollisionFns(collision_fn, batch_collision_fn, segment_fn, hit_fn, float(resolution), bool(obstacles), method,
                         tuple(pairs), close)

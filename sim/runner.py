@@ -2,7 +2,7 @@
 
 ``run_one`` is what every evaluation job calls (``sim.evaluate``), in a worker process or as a
 Ray task (``run_one_shipped``: the model's files arrive as bytes); ``plan_scenario`` is
-``lfd-plan``'s single plan. ``planner_settings`` gives both the same planner.
+``lfd-plan``'s single plan. ``scene_planner`` gives both the same planner.
 """
 
 from __future__ import annotations
@@ -13,22 +13,26 @@ from pathlib import Path
 
 from sim.scenarios import Scenario
 
-__all__ = ["EXEC_PACE", "init_worker", "model_files", "plan_scenario", "planner_settings", "run_one",
-           "run_one_shipped"]
+__all__ = ["EXEC_PACE", "init_worker", "model_files", "plan_scenario", "run_one", "run_one_shipped",
+           "scene_planner"]
 
 # how the executor times a plan (``sim.execute.ExecSettings.pace``), logged with every run: runs
 # logged without it were paced per visited step (before ``lfd.timing.step_clock``) and are redone
 EXEC_PACE = "demonstrated"
 
 
-def planner_settings(roadmap_size: int | None, seed: int, task: str, tool_point):
-    """The ``TaskPlannerSettings`` of an evaluation run (and of ``plan.py``'s single plans): the
-    sweep margin of the task's tool around the model's tool point (``sim.arm_geometry.sweep_margin``)."""
+def scene_planner(model, fns, task: str, roadmap_size: int | None, seed: int):
+    """The ``TaskPlanner`` of an evaluation run (and of ``plan.py``'s single plans) for ``model``
+    in a world whose collision callables are ``fns`` (``sim.collision.make_collision_fns``): the
+    sweep margin of the task's tool around the model's tool point (``sim.arm_geometry.sweep_margin``),
+    and the names of what configurations hit (``fns.hit_fn``), so that a landmark that moves away
+    frees only the edges it blocked."""
     from lfd.planning.planner import PlannerSettings
-    from lfd.planning.task_planner import TaskPlannerSettings
+    from lfd.planning.task_planner import TaskPlanner, TaskPlannerSettings
     from sim.arm_geometry import sweep_margin
-    margin = sweep_margin(task, tool_point.detach().cpu().numpy())
-    return TaskPlannerSettings(n_vertices=roadmap_size, seed=seed, planner=PlannerSettings(sweep_margin=margin))
+    margin = sweep_margin(task, model.tool.detach().cpu().numpy())
+    settings = TaskPlannerSettings(n_vertices=roadmap_size, seed=seed, planner=PlannerSettings(sweep_margin=margin))
+    return TaskPlanner(model, fns.collision_fn, fns.segment_fn, batch_collision_fn=fns.hit_fn, settings=settings)
 
 
 def init_worker() -> None:
@@ -46,7 +50,6 @@ def run_one(task: str, scenario: Scenario, variant, model_dir: str, roadmap_size
     import torch
 
     from lfd.learning.model import TaskModel
-    from lfd.planning.task_planner import TaskPlanner
     from lfd.robot.kinematics import KinematicModel
     from sim.collision import make_collision_fns
     from sim.execute import ExecSettings, execute_plan
@@ -58,9 +61,7 @@ def run_one(task: str, scenario: Scenario, variant, model_dir: str, roadmap_size
     model.kin = KinematicModel.from_spec(model.robot, dtype=model.dtype)
     with World(task, scenario=scenario.placements) as world:
         fns = make_collision_fns(world, obstacles=variant.obstacles)
-        planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn,
-                              batch_collision_fn=fns.batch_collision_fn,
-                              settings=planner_settings(roadmap_size, scenario.seed, task, model.tool))
+        planner = scene_planner(model, fns, task, roadmap_size, scenario.seed)
         frames = [] if video_path else None
         res = execute_plan(world, planner, scenario,
                            ExecSettings(pace=EXEC_PACE, frame_every=48 if video_path else 0, latency=latency),
@@ -102,7 +103,6 @@ def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int | None,
     Returns ``(report, plan_result, model)``.
     """
     from lfd.learning.model import TaskModel
-    from lfd.planning.task_planner import TaskPlanner
     from lfd.robot.kinematics import KinematicModel
     from sim import layout as L
     from sim.collision import make_collision_fns
@@ -115,9 +115,7 @@ def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int | None,
     with World(scenario.task, gui=gui, scenario=scenario.placements) as world:
         fns = make_collision_fns(world, obstacles=True)
         tic = time.perf_counter()
-        planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn,
-                              batch_collision_fn=fns.batch_collision_fn,
-                              settings=planner_settings(roadmap_size, scenario.seed, scenario.task, model.tool))
+        planner = scene_planner(model, fns, scenario.task, roadmap_size, scenario.seed)
         names, poses = world.sensed_landmarks()
         planner.update_landmarks(names, poses)
         report["roadmap_build_s"] = time.perf_counter() - tic

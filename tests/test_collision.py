@@ -105,6 +105,36 @@ def test_batch_equals_single(fns):
     assert 0 < batch.sum() < 40
 
 
+def test_hit_fn_names_what_each_configuration_hits(world, fns, roll_under_gripper):
+    """``hit_fn`` agrees with the boolean checks and names what is hit: the roll under the
+    gripper, the table, the robot itself, the joint limits; a named scene body is within the
+    margin of the arm (exact distances in the world)."""
+    from sim.collision import OBSTACLE_MARGIN
+
+    q_table = L.HOME_Q.copy()
+    q_table[1] += 0.5  # the spoon into the table top, away from the roll
+    q_table[0] -= 0.6
+    q_self = np.array([-1.2, 0.2, 0.0, 1.4, 0.0, 1.5, 0.0])  # hand across the torso
+    q_limits = L.HOME_Q.copy()
+    q_limits[3] = 3.0
+    rng = np.random.default_rng(4)
+    Q = np.concatenate([[L.HOME_Q, q_table, q_self, q_limits], L.HOME_Q + rng.normal(0, 0.3, (40, 7))])
+    what = fns.hit_fn(Q)
+    assert what.shape == (len(Q),)
+    assert ((what != "") == fns.batch_collision_fn(Q)).all()
+    assert what[:4].tolist() == ["paper_towels", "table", "self", "limits"]
+    bodies = {"table": world.table, **world.objects}
+    c, q_saved = world.client, world.get_q()
+    try:
+        for q, w in zip(Q, what.tolist()):
+            if w in bodies:
+                world.set_q(q)
+                assert min(pt[8] for pt in p.getClosestPoints(world.robot, bodies[w], 0.05, physicsClientId=c)) \
+                    < OBSTACLE_MARGIN
+    finally:
+        world.set_q(q_saved)
+
+
 def test_state_unchanged_after_checks(world, fns, roll_under_gripper):
     q_other = L.HOME_Q + 0.05
     world.set_q(q_other)

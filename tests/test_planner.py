@@ -558,6 +558,53 @@ def test_an_object_that_leaves_frees_only_the_edges_it_blocked():
     np.testing.assert_array_equal(E.check(np.arange(len(E.ends))), ~truth)
 
 
+def test_an_object_that_leaves_keeps_blocked_what_the_callables_say_another_object_hit():
+    """The same two boxes, the collision callable naming what it hits ("box", "wall"). When the
+    box leaves (``vacated`` with its name), no edge whose witness hit the wall is reset, fewer
+    edges are reset than when the callable answers a bare True (the same roadmap), nothing free
+    is held blocked, and every edge answers right for the new world."""
+    boxes = {"box": (np.array([0.1, 0.1]), np.array([0.3, 0.3])),
+             "wall": (np.array([0.32, -0.6]), np.array([0.45, 0.6]))}
+
+    def hit(q):
+        return next((n for n, (lo, hi) in boxes.items() if np.all(q >= lo) and np.all(q <= hi)), "")
+
+    def segment(q1, q2):
+        return any(hit(q1 + (q2 - q1) * s) for s in np.linspace(0.0, 1.0, 201))
+
+    def keypoints(Q):
+        P = np.c_[np.asarray(Q, dtype=float), np.zeros(len(Q))]
+        return np.stack([P, P], axis=1)
+
+    stores = {}
+    for named in (True, False):
+        rng = np.random.default_rng(11)
+        rm = Roadmap.build(lambda n: rng.uniform(-1, 1, (n, 2)), 200, hit if named else (lambda q: bool(hit(q))),
+                           segment)
+        stores[named] = EdgeStore(rm, step_cost(T2), np.full(T2, 0.1), DT, VMAX2, keypoint_fn=keypoints,
+                                  sweep_margin=0.0)
+    E, E_bare = stores[True], stores[False]
+    np.testing.assert_array_equal(E.ends, E_bare.ends)
+    np.testing.assert_array_equal(E.state, E_bare.state)
+    V = E.roadmap.vertices
+    s = np.linspace(0.0, 1.0, 201)
+    Qs = V[E.ends[:, 0], None] + (V[E.ends[:, 1]] - V[E.ends[:, 0]])[:, None] * s[None, :, None]  # (E, 201, 2)
+    in_box = np.array([[hit(x) == "box" for x in row] for row in Qs]).any(1)
+    before = E.state.copy()
+    centre, radius = np.array([0.2, 0.2, 0.0]), 0.15
+    boxes.pop("box")
+    truth = np.array([segment(V[u], V[w]) for u, w in E.ends])
+    E.invalidate(vacated=(centre, radius, "box"))
+    E_bare.invalidate(vacated=(centre, radius))
+    reset = (before == BLOCKED) & (E.state == UNKNOWN)
+    reset_bare = (before == BLOCKED) & (E_bare.state == UNKNOWN)
+    assert truth[E.state == BLOCKED].all()  # nothing free is held blocked
+    assert reset.any() and not (reset & ~in_box).any()  # only edges through the box's place
+    assert (reset <= reset_bare).all() and reset.sum() < reset_bare.sum()
+    assert ((before == BLOCKED) & ~truth).any() and reset[(before == BLOCKED) & ~truth].all()  # all it freed
+    np.testing.assert_array_equal(E.check(np.arange(len(E.ends))), ~truth)
+
+
 def test_a_few_infinite_edge_costs_leave_the_rest_of_the_step_to_the_search(toy):
     """A cost that is infinite in one region (a forbidden place) makes only the edges that touch it
     infinite: the cost-to-go must still let the search move elsewhere at those steps, and the plan

@@ -126,6 +126,31 @@ def test_batch_collision_fn_is_used():
     assert rm.n == 100 and calls and not any(in_box(q) for q in rm.vertices)
 
 
+@pytest.mark.parametrize("batched", [False, True])
+def test_hits_pass_on_the_names_the_collision_callables_give(batched):
+    """A callable may name what a configuration hits instead of answering True: ``hits`` passes
+    the names on ("" where free) and ``in_collision`` reads them as booleans; a bare True or
+    1 is ``UNNAMED``."""
+    from lfd.planning.roadmap import UNNAMED
+
+    def name(q):
+        return "box" if in_box(q) else ("wall" if q[0] > 0.8 else "")
+
+    rng = np.random.default_rng(8)
+    Q = rng.uniform(-1, 1, (200, 2))
+    want = [name(q) for q in Q]
+    assert {"box", "wall", ""} <= set(want)
+    if batched:
+        named = Roadmap(2, None, segment_hits_box, batch_collision_fn=lambda Q: np.array([name(q) for q in Q]))
+        bare = Roadmap(2, None, segment_hits_box, batch_collision_fn=lambda Q: np.array([int(bool(name(q))) for q in Q]))
+    else:
+        named, bare = Roadmap(2, name, segment_hits_box), Roadmap(2, lambda q: bool(name(q)), segment_hits_box)
+    assert named.hits(Q).tolist() == want
+    assert bare.hits(Q).tolist() == [UNNAMED if w else "" for w in want]
+    assert named.in_collision(Q).tolist() == bare.in_collision(Q).tolist() == [bool(w) for w in want]
+    assert named.hits(Q[:0]).shape == (0,)
+
+
 def test_biased_samples_are_used_first_and_filtered():
     rng = np.random.default_rng(6)
     biased = np.array([[0.0, 0.0], [0.9, 0.9], [-0.9, 0.9]])  # the first is inside the box

@@ -16,14 +16,17 @@
 * its collision state: ``UNKNOWN`` (not checked, or checked before a nearby object moved),
   ``FREE`` or ``BLOCKED``, and for a blocked edge a *witness* when one is known: the
   configuration found colliding (a quadrature node of the construction's or the search's point
-  screens, or an end vertex; the segment check does not say where it hit).
+  screens, or an end vertex; the segment check does not say where it hit), and what the witness
+  hit when the collision callables name it (``lfd.planning.roadmap.Roadmap.hits``).
 
 One method changes what is known: ``invalidate(landmarks=..., vacated=..., occupied=...)``. New
 landmarks make every cost stale (recomputed in one batch on the next ``costs()``). An object that
 moved leaves a ball (``vacated``, its old place) and takes another (``occupied``): an object that
 leaves cannot make a motion collide, so only the blocked edges it may have blocked are reset (at
 once, so that the search may use them again): those whose witness lies near the vacated ball
-(without a witness, whose motion passes near it). Their witness is the first thing ``screen`` and
+(without a witness, whose motion passes near it), except those whose witness is known to have
+hit something else than the object that left (the table under it, a neighbour: measured, 96-98%
+of the witnesses near a bowl that left; docs/EXPERIMENTS.md, *What a witness hit*). Their witness is the first thing ``screen`` and
 ``check`` test, one configuration that settles most of them (what else they hit -- the table, a
 neighbouring object -- is usually still there). An object that arrives cannot free a
 motion, so only the free (and screened) edges passing near the occupied ball become stale, and
@@ -43,7 +46,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from lfd.planning.roadmap import Roadmap
+from lfd.planning.roadmap import UNNAMED, Roadmap
 from lfd.planning.stepcost import StepCost, SummedStepCost
 
 __all__ = ["BLOCKED", "FREE", "UNKNOWN", "EdgeStore"]
@@ -146,6 +149,8 @@ class EdgeStore:
         # interior node (row of the interior nodes) or an end vertex; -1 where none
         self._wnode = np.empty(0, dtype=np.int64)  # (E,)
         self._wvert = np.empty(0, dtype=np.int64)  # (E,)
+        self._wwhat = np.empty(0, dtype=np.int64)  # (E,) what the witness hit: a code of ``_names``, -1 unnamed
+        self._names: dict[str, int] = {}
         self._vscreened = np.empty(0, dtype=bool)  # (n,) vertex checked since a nearby object moved
         self._regions: list[tuple[np.ndarray, float]] = []  # balls objects moved into
         self._epoch = np.empty(0, dtype=np.int64)  # (E,) regions an edge's state and screen account for
@@ -183,16 +188,19 @@ class EdgeStore:
         P, first = interior_points(Qa, Qb, m)
         state = np.zeros(len(new), dtype=np.int8)
         wnode = np.full(len(new), -1, dtype=np.int64)
+        wwhat = np.full(len(new), -1, dtype=np.int64)
         # the store's first edges (the roadmap as built) are screened at every quadrature node;
         # edges a regrowth adds are left to the search's screens (``screen``) and segment checks:
         # their node screen sat on the anytime re-plan's critical path (docs/EXPERIMENTS.md,
         # *Witnesses*, the regrowth's edges)
         screen_all = e0 == 0
         if len(P) and screen_all:
-            hit = np.flatnonzero(self.roadmap.in_collision(P))
+            what = self.roadmap.hits(P)
+            hit = np.flatnonzero(what != "")
             owner = np.repeat(np.arange(len(new)), m - 1)[hit]
             state[owner] = BLOCKED
-            wnode[owner] = hit + self._n_points
+            wnode[owner] = hit + self._n_points  # (an edge hit at several nodes keeps its last, in both)
+            wwhat[owner] = self._codes(what[hit])
             self.counters["screened_points"] += len(P)
         if self._summed is not None:
             self._sparts = _cat([self._sparts, self._summed.prepare_sums(P, m - 1)])
@@ -207,6 +215,7 @@ class EdgeStore:
         self._screened = np.concatenate([self._screened, np.full(len(new), screen_all)])
         self._wnode = np.concatenate([self._wnode, wnode])
         self._wvert = np.concatenate([self._wvert, np.full(len(new), -1, dtype=np.int64)])
+        self._wwhat = np.concatenate([self._wwhat, wwhat])
         self._epoch = np.concatenate([self._epoch, np.full(len(new), len(self._regions))])
         self.ends, self.tau, self.m = np.concatenate([self.ends, new]), np.concatenate([self.tau, tau]), \
             np.concatenate([self.m, m])
@@ -236,17 +245,24 @@ class EdgeStore:
 
         ``landmarks``: new landmark poses (whatever the step cost takes): every cost is stale.
         ``vacated``, ``occupied``: ``(centre (3,), radius)`` in the keypoints' frame, a ball an
-        object left or now takes. Blocked edges whose witness (else whose motion) passes near a
-        vacated ball are reset to ``UNKNOWN`` now; free and screened edges passing near an occupied ball are judged again
-        when a path or its screen reaches them (``check``, ``screen``). Returns the number of
-        edges reset now.
+        object left or now takes; ``vacated`` may name the object, ``(centre, radius, name)``, as
+        the collision callables name what they hit. Blocked edges whose witness (else whose
+        motion) passes near a vacated ball are reset to ``UNKNOWN`` now, unless their witness hit
+        something known to be another than the named object; free and screened edges passing
+        near an occupied ball are judged again when a path or its screen reaches them
+        (``check``, ``screen``). Returns the number of edges reset now.
         """
         if landmarks is not None:
             self._landmarks, self._costs = landmarks, None
         reset = np.zeros(0, dtype=np.int64)
         if vacated is not None:
+            if len(vacated) not in (2, 3):
+                raise ValueError(f"Expected vacated = (centre, radius) or (centre, radius, name), got {vacated!r}")
             c, r = np.asarray(vacated[0], dtype=float).reshape(3), float(vacated[1])
             blocked = np.flatnonzero(self.state == BLOCKED)
+            if len(vacated) == 3 and vacated[2] is not None:  # what hit another object stays blocked
+                what = self._wwhat[blocked]
+                blocked = blocked[(what < 0) | (what == self._names.get(str(vacated[2]), -2))]
             reset = blocked[self._near_witness(blocked, c, r)]
             self.state[reset] = UNKNOWN  # the witness stays: ``screen`` and ``check`` try it first
             self._screened[reset] = False
@@ -339,16 +355,19 @@ class EdgeStore:
         verts = verts[~self._vscreened[verts]]
         if len(verts):  # a vertex an object moved onto blocks every edge it has
             self._vscreened[verts] = True
-            for v in verts[self.roadmap.in_collision(self.roadmap.vertices[verts])].tolist():
-                self.set_blocked(self.incident(v), at_vertex=v)
+            what = self.roadmap.hits(self.roadmap.vertices[verts])
+            for v, w in zip(verts.tolist(), what.tolist()):
+                if w:
+                    self.set_blocked(self.incident(v), at_vertex=v, what=w)
             eids = eids[self.state[eids] == UNKNOWN]
         eids = eids[(self.m[eids] > 1) | self._witnessed(eids)]
         if len(eids) == 0:
             return 0
         self.counters["screened_points"] += len(eids)
         Q, wn, wv = self._probe(eids)
-        hit = self.roadmap.in_collision(Q)
-        self._block(eids[hit], wn[hit], wv[hit])
+        what = self.roadmap.hits(Q)
+        hit = what != ""
+        self._block(eids[hit], wn[hit], wv[hit], self._codes(what[hit]))
         return int(hit.sum())
 
     def _witnessed(self, eids: np.ndarray) -> np.ndarray:
@@ -378,18 +397,26 @@ class EdgeStore:
         """``(deg,)`` the ids of the edges at vertex ``v``."""
         return np.fromiter((e for _, _, e in self.roadmap.graph.edges(int(v), data="eid")), dtype=np.int64)
 
-    def set_blocked(self, eids, at_vertex: int | None = None) -> None:
+    def set_blocked(self, eids, at_vertex: int | None = None, what: str | None = None) -> None:
         """Mark edges as colliding; ``at_vertex``: their end vertex found in collision, if that
         is why (a witness: ``invalidate`` resets such an edge only when an object leaves near
-        that vertex)."""
+        that vertex), and ``what`` it hit, if known (``Roadmap.hits``)."""
         eids = np.asarray(eids, dtype=np.int64)
-        self._block(eids, -1, -1 if at_vertex is None else int(at_vertex))
+        self._block(eids, -1, -1 if at_vertex is None else int(at_vertex),
+                    self._codes(np.array([what or UNNAMED]))[0])
 
-    def _block(self, eids: np.ndarray, wnode, wvert) -> None:
-        """Mark ``eids`` as colliding with their witnesses (interior rows, vertices; -1 where none)."""
+    def _codes(self, what: np.ndarray) -> np.ndarray:
+        """``(n,)`` codes of the names ``what (n,)`` (``Roadmap.hits``; -1 for ``UNNAMED``)."""
+        for name in set(what.tolist()) - self._names.keys() - {UNNAMED}:
+            self._names[name] = len(self._names)
+        return np.array([self._names.get(w, -1) for w in what.tolist()], dtype=np.int64)
+
+    def _block(self, eids: np.ndarray, wnode, wvert, wwhat) -> None:
+        """Mark ``eids`` as colliding with their witnesses (interior rows, vertices; -1 where
+        none) and what those hit (codes, -1 where unnamed)."""
         self.counters["blocked"] += int((self.state[eids] != BLOCKED).sum())
         self.state[eids] = BLOCKED
-        self._wnode[eids], self._wvert[eids] = wnode, wvert
+        self._wnode[eids], self._wvert[eids], self._wwhat[eids] = wnode, wvert, wwhat
 
     def check(self, eids) -> np.ndarray:
         """Settle the collision state of ``eids`` (unknown ones checked now: the witness first,
@@ -402,10 +429,11 @@ class EdgeStore:
         if len(known):  # a configuration that collided before, checked first
             Q, wn, wv = self._probe(known)
             self.counters["witness_checks"] += len(known)
-            again = self.roadmap.in_collision(Q)
-            self._block(known[again], wn[again], wv[again])  # the witness kept
+            what = self.roadmap.hits(Q)
+            again = what != ""
+            self._block(known[again], wn[again], wv[again], self._codes(what[again]))  # the witness kept
         for e in todo[self.state[todo] == UNKNOWN].tolist():
-            self._wnode[e] = self._wvert[e] = -1
+            self._wnode[e] = self._wvert[e] = self._wwhat[e] = -1
             u, w = self.ends[e]
             self.counters["segment_checks"] += 1
             hit = self.roadmap.segment_collides(V[u], V[w])

@@ -175,12 +175,14 @@ class ClosedLoopPlanner:
             pass  # not an array (e.g. a dict of poses): the step cost judges it
         self.edges.invalidate(landmarks=landmarks)
 
-    def object_moved(self, old_centre, new_centre, radius: float) -> int:
+    def object_moved(self, old_centre, new_centre, radius: float, name: str | None = None) -> int:
         """An object of about ``radius`` moved from ``old_centre (3,)`` to ``new_centre (3,)``
         (either may be None: it appeared or left): blocked edges near its old place may be free
         now, free edges near its new place are checked again when a path uses them
-        (``EdgeStore.invalidate``). Returns how many edges were reset at once."""
-        return self.edges.invalidate(vacated=None if old_centre is None else (old_centre, radius),
+        (``EdgeStore.invalidate``). ``name``: the object's, as the collision callables name what
+        they hit (``Roadmap.hits``): then the blocked edges seen hitting something else stay
+        blocked. Returns how many edges were reset at once."""
+        return self.edges.invalidate(vacated=None if old_centre is None else (old_centre, radius, name),
                                      occupied=None if new_centre is None else (new_centre, radius))
 
     # ------------------------------------------------------------------ planning
@@ -333,8 +335,9 @@ class ClosedLoopPlanner:
                     hit = True
                     for v in E.ends[r]:
                         incident = E.incident(v)
-                        if rm.in_collision(rm.vertices[v][None])[0]:  # e.g. an object moved onto it
-                            E.set_blocked(incident, at_vertex=int(v))
+                        what = rm.hits(rm.vertices[v][None])[0]
+                        if what:  # e.g. an object moved onto it
+                            E.set_blocked(incident, at_vertex=int(v), what=what)
                         else:  # an obstacle is near: a cheap look at the other ways out of v
                             E.screen(incident)
             else:

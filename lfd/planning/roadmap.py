@@ -4,7 +4,9 @@ The roadmap only knows three callables, in the style of caelan/motion-planners:
 
 * ``sample_fn(n) -> (n, d)`` array of configurations (e.g. uniform within joint limits);
 * ``collision_fn(q: (d,)) -> bool`` (True = in collision), or ``batch_collision_fn(Q: (n, d)) ->
-  (n,) bool``;
+  (n,) bool``; either may instead name what a configuration hits (a ``str``, ``""`` where free,
+  e.g. ``"table"`` or a landmark's name): ``hits`` passes the names on, so that the planner knows
+  which blocked edges an object that moves away may free (``lfd.planning.edgestore``);
 * ``segment_fn(q1: (d,), q2: (d,)) -> bool`` (True = the straight segment collides).
 
 Connection rule (Karaman & Frazzoli's k-nearest PRM*): every vertex added when the roadmap holds
@@ -33,7 +35,9 @@ import networkx as nx
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["Roadmap", "RoadmapSettings", "ik_biased_samples", "k_prm_star", "mixed_samples"]
+__all__ = ["UNNAMED", "Roadmap", "RoadmapSettings", "ik_biased_samples", "k_prm_star", "mixed_samples"]
+
+UNNAMED = "?"  # what ``Roadmap.hits`` says of a collision the callables report as a bare True
 
 
 def k_prm_star(n: int, d: int, k_scale: float = 1.0) -> int:
@@ -73,7 +77,7 @@ class Roadmap:
     collision_fn : ``q (d,) -> bool``, True when ``q`` is in collision.
     segment_fn : ``(q1 (d,), q2 (d,)) -> bool``, True when the segment collides.
     batch_collision_fn : optional ``Q (n, d) -> (n,) bool``; used instead of ``collision_fn`` for
-        batches.
+        batches. Both may return names of what is hit instead of booleans (``hits``).
     settings : RoadmapSettings.
     """
 
@@ -142,13 +146,21 @@ class Roadmap:
 
     def in_collision(self, Q: np.ndarray) -> np.ndarray:
         """Q: (n, d) -> (n,) bool, True where the configuration collides."""
+        return self.hits(Q) != ""
+
+    def hits(self, Q: np.ndarray) -> np.ndarray:
+        """Q: (n, d) -> (n,) str: what each configuration hits, ``""`` where it is free; the
+        collision callables' names when they give them, else ``UNNAMED``."""
         Q = self._check_Q(Q, "Q")
         self.counters["vertex_checks"] += len(Q)
         if len(Q) == 0:
-            return np.zeros(0, dtype=bool)
+            return np.zeros(0, dtype=str)
         if self.batch_collision_fn is not None:
-            return np.asarray(self.batch_collision_fn(Q), dtype=bool).reshape(len(Q))
-        return np.fromiter((bool(self.collision_fn(q)) for q in Q), dtype=bool, count=len(Q))
+            out = np.asarray(self.batch_collision_fn(Q)).reshape(len(Q))
+            if out.dtype.kind in "UO":
+                return np.array([_name(x) for x in out.tolist()])
+            return np.where(out.astype(bool), UNNAMED, "")
+        return np.array([_name(self.collision_fn(q)) for q in Q])
 
     def add_vertices(self, Q: np.ndarray, check: bool = True) -> np.ndarray:
         """Add configurations ``Q: (m, d)`` and connect each to its ``k_PRM*(n_total)`` nearest.
@@ -249,6 +261,14 @@ class Roadmap:
     def segment_collides(self, q1: np.ndarray, q2: np.ndarray) -> bool:
         """Whether the straight segment ``q1-q2`` collides (``segment_fn``; not cached here)."""
         return self._segment_collides(np.asarray(q1, dtype=float), np.asarray(q2, dtype=float))
+
+def _name(hit) -> str:
+    """What a collision callable's answer says is hit: its name, ``UNNAMED`` for a bare truthy
+    answer, ``""`` for a falsy one (free)."""
+    if isinstance(hit, str):
+        return hit
+    return UNNAMED if hit else ""
+
 
 def mixed_samples(sample_fn: Callable, n: int, biased_samples: np.ndarray, bias_fraction: float,
                   rng: np.random.Generator) -> np.ndarray:

@@ -28,7 +28,8 @@ Interactive rates. A landmark update only marks the edge costs stale (``lfd.plan
 next plan recomputes all of them in one batch from per-configuration parts prepared once
 (``lfd.planning.stepcost.ModelStepCost``). Sensed landmarks are obstacles too: when one moves, the
 blocked edges it may have blocked (their witness, the configuration found colliding, within
-``object_radius`` of its old place) and the free edges whose motion passes within it of its new
+``object_radius`` of its old place, and not seen hitting something else when the collision
+callables name what they hit) and the free edges whose motion passes within it of its new
 place are checked again when a path uses them (``lfd.planning.edgestore``). The regrowth after a far move (IK and projection of new biased vertices, seconds)
 is kept off the critical path when the caller asks: ``update_landmarks(..., grow=False)`` answers
 on the current roadmap, and ``grow()`` adds the vertices afterwards, after which a new plan
@@ -77,7 +78,10 @@ class TaskPlanner:
     collision_fn : ``q (d,) -> bool`` (True = in collision).
     segment_fn : ``(q1, q2) -> bool`` (True = the straight joint-space segment collides).
     sample_fn : ``n -> (n, d)`` configurations; uniform within the joint limits by default.
-    batch_collision_fn : optional ``(B, d) -> (B,) bool``.
+    batch_collision_fn : optional ``(B, d) -> (B,) bool``. The collision callables may name what
+        a configuration hits instead (``str``, ``""`` where free; ``lfd.planning.roadmap.Roadmap.hits``):
+        with the sensed landmarks' names for the objects, a landmark that moves away then frees
+        only the edges it blocked, not those blocked by the table under it (fewer searches).
     settings : ``TaskPlannerSettings``.
     dt : seconds per sample of the model's time base (Sec. V's edge costs weigh a motion's
         duration in samples), for a model that names no task (learned from demonstrations without
@@ -185,7 +189,7 @@ class TaskPlanner:
             old = self._sensed.get(name)
             if self.planner is not None and old is not None and np.all(np.isfinite(pos)) \
                     and np.linalg.norm(pos - old) > 0.005:
-                self._invalidated_edges += self.planner.object_moved(old, pos, self.settings.object_radius)
+                self._invalidated_edges += self.planner.object_moved(old, pos, self.settings.object_radius, name)
             if np.all(np.isfinite(pos)):
                 self._sensed[name] = pos.copy()
 
