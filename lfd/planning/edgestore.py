@@ -25,8 +25,8 @@ moved leaves a ball (``vacated``, its old place) and takes another (``occupied``
 leaves cannot make a motion collide, so only the blocked edges it may have blocked are reset (at
 once, so that the search may use them again): those whose witness lies near the vacated ball
 (without a witness, whose motion passes near it), except those whose witness is known to have
-hit something else than the object that left (the table under it, a neighbour: measured, 96-98%
-of the witnesses near a bowl that left; docs/EXPERIMENTS.md, *What a witness hit*). Their witness is the first thing ``screen`` and
+hit something else than the object that left (the table under it, a neighbour: 96-98% of the
+witnesses near a bowl that left, measured; docs/EXPERIMENTS.md, *What a witness hit*). Their witness is the first thing ``screen`` and
 ``check`` test, one configuration that settles most of them (what else they hit -- the table, a
 neighbouring object -- is usually still there). An object that arrives cannot free a
 motion, so only the free (and screened) edges passing near the occupied ball become stale, and
