@@ -603,6 +603,11 @@ def test_an_object_that_leaves_keeps_blocked_what_the_callables_say_another_obje
     assert (reset <= reset_bare).all() and reset.sum() < reset_bare.sum()
     assert ((before == BLOCKED) & ~truth).any() and reset[(before == BLOCKED) & ~truth].all()  # all it freed
     np.testing.assert_array_equal(E.check(np.arange(len(E.ends))), ~truth)
+    # the checks named the witnesses that still collide after the wall (renamed from the box):
+    # when the wall leaves too, every edge is free again
+    boxes.pop("wall")
+    E.invalidate(vacated=(np.array([0.385, 0.0, 0.0]), 0.61, "wall"))
+    assert E.check(np.arange(len(E.ends))).all()
 
 
 def test_a_few_infinite_edge_costs_leave_the_rest_of_the_step_to_the_search(toy):

@@ -39,8 +39,10 @@ def sweep_model(home) -> TaskModel:
     return model
 
 
-@pytest.fixture(scope="module")
-def scene(make_world):
+@pytest.fixture(scope="module", params=["bool", "named"])
+def scene(make_world, request):
+    """A powder scene and a planner on a tiny roadmap; ``named``: its collision callable names
+    what it hits (``hit_fn``), so the bowl's move resets only what the bowl blocked."""
     from sim import layout as L
     from sim.collision import make_collision_fns
     from sim.scenarios import draw_scenarios
@@ -54,7 +56,8 @@ def scene(make_world):
     world.place_object("paper_towels", world.T_world_gripper()[:2, 3])
     world.set_q(L.HOME_Q)
     fns = make_collision_fns(world)
-    planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn, batch_collision_fn=fns.batch_collision_fn,
+    batch = fns.hit_fn if request.param == "named" else fns.batch_collision_fn
+    planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn, batch_collision_fn=batch,
                           settings=TaskPlannerSettings(n_vertices=90, seed=3))
     return world, model, fns, planner, model.mu[0, :7].detach().numpy().copy()
 

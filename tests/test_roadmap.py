@@ -151,6 +151,14 @@ def test_hits_pass_on_the_names_the_collision_callables_give(batched):
     assert named.hits(Q[:0]).shape == (0,)
 
 
+def test_hits_reads_a_list_mixing_names_and_booleans():
+    """A plain list of names, False, None and numpy booleans: nothing free is named "False"."""
+    answers = ["box", False, None, np.bool_(True), np.bool_(False), "", np.str_("wall"), True]
+    rm = Roadmap(2, None, segment_hits_box, batch_collision_fn=lambda Q: list(answers[:len(Q)]))
+    got = rm.hits(np.zeros((len(answers), 2)))
+    assert got.tolist() == ["box", "", "", "?", "", "", "wall", "?"]
+
+
 def test_biased_samples_are_used_first_and_filtered():
     rng = np.random.default_rng(6)
     biased = np.array([[0.0, 0.0], [0.9, 0.9], [-0.9, 0.9]])  # the first is inside the box

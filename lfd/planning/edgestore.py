@@ -199,8 +199,9 @@ class EdgeStore:
             hit = np.flatnonzero(what != "")
             owner = np.repeat(np.arange(len(new)), m - 1)[hit]
             state[owner] = BLOCKED
-            wnode[owner] = hit + self._n_points  # (an edge hit at several nodes keeps its last, in both)
-            wwhat[owner] = self._codes(what[hit])
+            last = len(owner) - 1 - np.unique(owner[::-1], return_index=True)[1]  # an edge hit at several nodes: its last
+            wnode[owner[last]] = hit[last] + self._n_points
+            wwhat[owner[last]] = self._codes(what[hit[last]])
             self.counters["screened_points"] += len(P)
         if self._summed is not None:
             self._sparts = _cat([self._sparts, self._summed.prepare_sums(P, m - 1)])
@@ -245,8 +246,9 @@ class EdgeStore:
 
         ``landmarks``: new landmark poses (whatever the step cost takes): every cost is stale.
         ``vacated``, ``occupied``: ``(centre (3,), radius)`` in the keypoints' frame, a ball an
-        object left or now takes; ``vacated`` may name the object, ``(centre, radius, name)``, as
-        the collision callables name what they hit. Blocked edges whose witness (else whose
+        object left or now takes; ``vacated`` may name the object, ``(centre, radius, name)``,
+        with the name the collision callables give it (``Roadmap.hits``; a name they never give
+        keeps every named witness blocked). Blocked edges whose witness (else whose
         motion) passes near a vacated ball are reset to ``UNKNOWN`` now, unless their witness hit
         something known to be another than the named object; free and screened edges passing
         near an occupied ball are judged again when a path or its screen reaches them
@@ -260,7 +262,7 @@ class EdgeStore:
                 raise ValueError(f"Expected vacated = (centre, radius) or (centre, radius, name), got {vacated!r}")
             c, r = np.asarray(vacated[0], dtype=float).reshape(3), float(vacated[1])
             blocked = np.flatnonzero(self.state == BLOCKED)
-            if len(vacated) == 3 and vacated[2] is not None:  # what hit another object stays blocked
+            if len(vacated) == 3 and vacated[2]:  # what hit another object stays blocked
                 what = self._wwhat[blocked]
                 blocked = blocked[(what < 0) | (what == self._names.get(str(vacated[2]), -2))]
             reset = blocked[self._near_witness(blocked, c, r)]
@@ -338,7 +340,7 @@ class EdgeStore:
 
     def screen(self, eids) -> int:
         """Point-check one configuration of each unknown, unscreened edge among ``eids`` in one
-        batch (``roadmap.in_collision``): its witness if it has one, else its middle quadrature
+        batch (``roadmap.hits``): its witness if it has one, else its middle quadrature
         node (the midpoint when ``m`` is even); those that collide become ``BLOCKED``. A cheap
         first look near a collision; the segment check stays the final word. Returns how many
         were blocked.

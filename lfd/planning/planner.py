@@ -179,9 +179,10 @@ class ClosedLoopPlanner:
         """An object of about ``radius`` moved from ``old_centre (3,)`` to ``new_centre (3,)``
         (either may be None: it appeared or left): blocked edges near its old place may be free
         now, free edges near its new place are checked again when a path uses them
-        (``EdgeStore.invalidate``). ``name``: the object's, as the collision callables name what
-        they hit (``Roadmap.hits``): then the blocked edges seen hitting something else stay
-        blocked. Returns how many edges were reset at once."""
+        (``EdgeStore.invalidate``). ``name``: the object's, exactly as the collision callables
+        name what they hit (``Roadmap.hits``): then the blocked edges seen hitting something else
+        stay blocked (sound as long as every object that moves is reported). Returns how many
+        edges were reset at once."""
         return self.edges.invalidate(vacated=None if old_centre is None else (old_centre, radius, name),
                                      occupied=None if new_centre is None else (new_centre, radius))
 

@@ -156,7 +156,9 @@ class Roadmap:
         if len(Q) == 0:
             return np.zeros(0, dtype=str)
         if self.batch_collision_fn is not None:
-            out = np.asarray(self.batch_collision_fn(Q)).reshape(len(Q))
+            out = self.batch_collision_fn(Q)
+            # (a list mixing names and False must not become the string "False")
+            out = (out if isinstance(out, np.ndarray) else np.asarray(out, dtype=object)).reshape(len(Q))
             if out.dtype.kind in "UO":
                 return np.array([_name(x) for x in out.tolist()])
             return np.where(out.astype(bool), UNNAMED, "")
@@ -261,6 +263,7 @@ class Roadmap:
     def segment_collides(self, q1: np.ndarray, q2: np.ndarray) -> bool:
         """Whether the straight segment ``q1-q2`` collides (``segment_fn``; not cached here)."""
         return self._segment_collides(np.asarray(q1, dtype=float), np.asarray(q2, dtype=float))
+
 
 def _name(hit) -> str:
     """What a collision callable's answer says is hit: its name, ``UNNAMED`` for a bare truthy

@@ -80,8 +80,10 @@ class TaskPlanner:
     sample_fn : ``n -> (n, d)`` configurations; uniform within the joint limits by default.
     batch_collision_fn : optional ``(B, d) -> (B,) bool``. The collision callables may name what
         a configuration hits instead (``str``, ``""`` where free; ``lfd.planning.roadmap.Roadmap.hits``):
-        with the sensed landmarks' names for the objects, a landmark that moves away then frees
-        only the edges it blocked, not those blocked by the table under it (fewer searches).
+        with the sensed landmarks' names for the objects (exactly the names ``update_landmarks``
+        gets), a landmark that moves away then frees only the edges it blocked, not those blocked
+        by the table under it (fewer searches). Every object that moves must then be reported
+        (sensed), or an edge it blocked may stay blocked after it left.
     settings : ``TaskPlannerSettings``.
     dt : seconds per sample of the model's time base (Sec. V's edge costs weigh a motion's
         duration in samples), for a model that names no task (learned from demonstrations without
