@@ -559,12 +559,14 @@ def test_an_object_that_leaves_frees_only_the_edges_it_blocked():
 
 
 def test_an_object_that_leaves_keeps_blocked_what_the_callables_say_another_object_hit():
-    """The same two boxes, the collision callable naming what it hits ("box", "wall"). When the
-    box leaves (``vacated`` with its name), no edge whose witness hit the wall is reset, fewer
-    edges are reset than when the callable answers a bare True (the same roadmap), nothing free
-    is held blocked, and every edge answers right for the new world."""
+    """Two boxes that overlap, the collision callable naming what it hits ("box" first, then
+    "wall"). When the box leaves (``vacated`` with its name), no edge whose witness hit only the
+    wall is reset, fewer edges are reset than when the callable answers a bare True (the same
+    roadmap), nothing free is held blocked, and every edge answers right for the new world; the
+    witnesses in the overlap, named after the box, are renamed after the wall by the checks, so
+    that when the wall leaves too every edge is free again."""
     boxes = {"box": (np.array([0.1, 0.1]), np.array([0.3, 0.3])),
-             "wall": (np.array([0.32, -0.6]), np.array([0.45, 0.6]))}
+             "wall": (np.array([0.2, -0.6]), np.array([0.45, 0.6]))}
 
     def hit(q):
         return next((n for n, (lo, hi) in boxes.items() if np.all(q >= lo) and np.all(q <= hi)), "")
@@ -603,10 +605,8 @@ def test_an_object_that_leaves_keeps_blocked_what_the_callables_say_another_obje
     assert (reset <= reset_bare).all() and reset.sum() < reset_bare.sum()
     assert ((before == BLOCKED) & ~truth).any() and reset[(before == BLOCKED) & ~truth].all()  # all it freed
     np.testing.assert_array_equal(E.check(np.arange(len(E.ends))), ~truth)
-    # the checks named the witnesses that still collide after the wall (renamed from the box):
-    # when the wall leaves too, every edge is free again
     boxes.pop("wall")
-    E.invalidate(vacated=(np.array([0.385, 0.0, 0.0]), 0.61, "wall"))
+    E.invalidate(vacated=(np.array([0.325, 0.0, 0.0]), 0.62, "wall"))
     assert E.check(np.arange(len(E.ends))).all()
 
 
