@@ -135,9 +135,10 @@ def _overlap(a: np.ndarray, b: np.ndarray, pad: float = 0.0) -> np.ndarray:
 def _too_close(client, robot, moving, link_boxes, bodies, body_boxes) -> int:
     """The first scene body (its index in ``bodies``, -1 for none) a moving link comes within
     ``OBSTACLE_MARGIN`` of: exact distances (``getClosestPoints``) for the (link, body) pairs
-    whose AABBs ``(M, 2, 3)``, ``(E, 2, 3)`` are that close. (Contact points from ``performCollisionDetection`` are no substitute: Bullet
-    reports positive-distance points for some shape pairs only, e.g. not for a finger's box
-    0.9 mm from a cylinder, which a run then touched.)"""
+    whose AABBs ``(M, 2, 3)``, ``(E, 2, 3)`` are that close. (Contact points from
+    ``performCollisionDetection`` are no substitute: Bullet reports positive-distance points for
+    some shape pairs only, e.g. not for a finger's box 0.9 mm from a cylinder, which a run then
+    touched.)"""
     if not len(bodies):
         return -1
     near = _overlap(link_boxes[:, None], body_boxes[None], OBSTACLE_MARGIN)  # (M, E)

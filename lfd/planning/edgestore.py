@@ -26,8 +26,8 @@ leaves cannot make a motion collide, so only the blocked edges it may have block
 once, so that the search may use them again): those whose witness lies near the vacated ball
 (without a witness, whose motion passes near it), except those whose witness is known to have
 hit something else than the object that left (the table under it, a neighbour: 96-98% of the
-witnesses near a bowl that left, measured; docs/EXPERIMENTS.md, *What a witness hit*). Their witness is the first thing ``screen`` and
-``check`` test, one configuration that settles most of them (what else they hit -- the table, a
+witnesses near a bowl that left, measured; docs/EXPERIMENTS.md, *What a witness hit*). Their
+witness is the first thing ``screen`` and ``check`` test, one configuration that settles most of them (what else they hit -- the table, a
 neighbouring object -- is usually still there). An object that arrives cannot free a
 motion, so only the free (and screened) edges passing near the occupied ball become stale, and
 lazily: ``check`` and ``screen`` test the edges a path reaches against the balls occupied since
@@ -199,7 +199,8 @@ class EdgeStore:
             hit = np.flatnonzero(what != "")
             owner = np.repeat(np.arange(len(new)), m - 1)[hit]
             state[owner] = BLOCKED
-            last = len(owner) - 1 - np.unique(owner[::-1], return_index=True)[1]  # an edge hit at several nodes: its last
+            # an edge hit at several nodes keeps its last as the witness
+            last = len(owner) - 1 - np.unique(owner[::-1], return_index=True)[1]
             wnode[owner[last]] = hit[last] + self._n_points
             wwhat[owner[last]] = self._codes(what[hit[last]])
             self.counters["screened_points"] += len(P)
