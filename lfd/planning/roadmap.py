@@ -159,7 +159,9 @@ class Roadmap:
             out = self.batch_collision_fn(Q)
             # (a list mixing names and False must not become the string "False")
             out = (out if isinstance(out, np.ndarray) else np.asarray(out, dtype=object)).reshape(len(Q))
-            if out.dtype.kind in "UO":
+            if out.dtype.kind == "U":  # names already
+                return out
+            if out.dtype.kind == "O":
                 return np.array([_name(x) for x in out.tolist()])
             return np.where(out.astype(bool), UNNAMED, "")
         return np.array([_name(self.collision_fn(q)) for q in Q])
