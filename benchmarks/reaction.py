@@ -46,11 +46,10 @@ def _plan_row(res, update_s: float = 0.0) -> dict:
 
 
 def _summary(values) -> dict:
-    v = np.asarray([x for x in values if x is not None], dtype=float)
-    if len(v) == 0:
-        return {"median": None, "p95": None, "mean": None, "n": 0}
-    return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "mean": float(np.mean(v)),
-            "n": int(len(v))}
+    """``sim.report.stats`` of the scenes' ``values`` that were measured, and their number."""
+    from sim.report import stats
+
+    return {**stats(values), "n": sum(x is not None and not np.isnan(x) for x in values)}
 
 
 def bench_scene(model, task: str, scenario, roadmap_size: int | None = None) -> dict:
@@ -109,17 +108,18 @@ def main(argv=None) -> int:
                     help="roadmap vertices (default: the planner's for the task's time steps, as lfd-plan)")
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "bench" / "reaction.json")
     args = ap.parse_args(argv)
-    if args.scenes < 1:
-        raise UsageError(f"--scenes must be at least 1, got {args.scenes}")
-    from sim.plan_cli import MAX_ROADMAP
-    if args.roadmap_size is not None and not 10 <= args.roadmap_size <= MAX_ROADMAP:
-        raise UsageError(f"--roadmap-size must be in [10, {MAX_ROADMAP}], got {args.roadmap_size}")
+    from sim.plan_cli import check_roadmap_size
+    from sim.scenarios import check_set_size, draw_scenarios, with_bowl_move
+    try:
+        check_set_size(args.scenes, "--scenes")
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    check_roadmap_size(args.roadmap_size)
     from lfd.learning.model import TaskModel
     from lfd.robot.kinematics import KinematicModel
     from sim.evaluate import VARIANTS, ensure_model
     from sim.reach import DumpReach
-    from sim.report import PAPER_LATENCY_MS
-    from sim.scenarios import draw_scenarios, with_bowl_move
+    from sim.report import PAPER_LATENCY_MS, strict_json
 
     torch.set_num_threads(1)
     models = args.models or ROOT / "runs" / args.task / "models"
@@ -153,7 +153,7 @@ def main(argv=None) -> int:
     report["machine"] = {"python": platform.python_version(), "torch": torch.__version__,
                          "cpu_threads": torch.get_num_threads(), "processor": platform.machine()}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=2) + "\n")
+    args.out.write_text(json.dumps(strict_json(report), indent=2) + "\n")
     rs, ini = summary["reaction_s"], summary["initial_s"]
     print(f"{args.task}: reaction median {rs['median'] * 1e3:.0f} ms, mean {rs['mean'] * 1e3:.0f} ms, p95 "
           f"{rs['p95'] * 1e3:.0f} ms (paper: a mean of {PAPER_LATENCY_MS[args.task]} ms on 12 cores); initial plan "

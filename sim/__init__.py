@@ -2,7 +2,9 @@
 
 PyBullet writes a banner ("pybullet build time: ...") to the C-level stderr when imported
 and chatter to stdout when loading URDFs; ``quiet_stdio`` silences both (file descriptors
-1 and 2), so command-line tools can keep stderr to one clear line on errors.
+1 and 2), so command-line tools can keep stderr to one clear line on errors. The modules that
+need PyBullet take it from ``sim.bullet``, which imports it quietly; importing ``sim`` alone
+does not load it, and ``require_pybullet`` names the extra to install when it is missing.
 """
 
 from __future__ import annotations
@@ -35,13 +37,6 @@ def quiet_stdio():
         for fd, copy in saved:
             os.dup2(copy, fd)
             os.close(copy)
-
-
-try:  # PyBullet prints a banner on import: imported once here, quietly; later imports are cached
-    with quiet_stdio():
-        import pybullet  # noqa: F401
-except ImportError:  # the plain install (no [sim] extra): ``lfd-plan --help`` still works, and
-    pass  # ``require_pybullet`` names the extra before anything needs the simulator
 
 
 def require_pybullet() -> None:

@@ -7,7 +7,8 @@ joint origins and the tool point (``sweep_margin``).
 from __future__ import annotations
 
 import numpy as np
-import pybullet as p
+
+from sim.bullet import p
 
 __all__ = ["ALWAYS_TOUCHING", "LINK_RADIUS", "joint_levers", "self_pairs", "sweep_margin"]
 

@@ -13,9 +13,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pybullet as p
 
 from sim import layout as L
+from sim.bullet import p
 
 __all__ = [
     "BUILDERS",

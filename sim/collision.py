@@ -63,9 +63,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pybullet as p
 
 from sim.arm_geometry import joint_levers, self_pairs
+from sim.bullet import p
 
 __all__ = ["CollisionFns", "bisection_order", "make_collision_fns"]
 

@@ -37,7 +37,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pybullet as p
 import torch
 
 from lfd.cli import ArgumentParser, UsageError, check_seed, run_main, writable_dir
@@ -48,6 +47,7 @@ from lfd.robot.kinematics import KinematicModel
 from lfd.robot.robots import BAXTER_LEFT
 from sim import layout as L
 from sim.attitude import tilts_of
+from sim.bullet import p
 from sim.demo_paths import DUMP_NOMINAL, TASK_POINTS, DemoPath, check_roll, draw_path, facing
 
 __all__ = [

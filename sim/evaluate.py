@@ -41,7 +41,7 @@ from sim.latency import parse_latency
 from sim.reach import DumpReach
 from sim.report import format_table, spread, strict_json, summarize
 from sim.runner import EXEC_PACE, init_worker, model_files, run_one, run_one_shipped
-from sim.scenarios import MAX_BASE_SEED, SEED_STRIDE, draw_scenarios, with_bowl_move
+from sim.scenarios import MAX_BASE_SEED, check_set_size, draw_scenarios, with_bowl_move
 from sim.sweep import EXECUTORS, Job, make_executor, require_ray, run_jobs
 
 __all__ = ["VARIANTS", "EvalSettings", "TrainingFailed", "Variant", "evaluate", "format_table", "run_one"]
@@ -113,11 +113,9 @@ class EvalSettings:
             if not values or len(set(values)) != len(values) or not all(0 <= x < MAX_BASE_SEED for x in values):
                 raise ValueError(f"{name} must be distinct integers in [0, {MAX_BASE_SEED}), got {values}")
             object.__setattr__(self, name, values)
-        if self.n_scenarios < 1 or self.workers < 1:
-            raise ValueError(f"n_scenarios and workers must be at least 1, got {self.n_scenarios}, {self.workers}")
-        if self.n_scenarios > SEED_STRIDE:  # scenario S * stride + i would be another set's scenario too
-            raise ValueError(f"n_scenarios must be at most {SEED_STRIDE} (the seeds' stride between scenario sets), "
-                             f"got {self.n_scenarios}")
+        check_set_size(self.n_scenarios, "n_scenarios")
+        if self.workers < 1:
+            raise ValueError(f"workers must be at least 1, got {self.workers}")
         if self.executor not in EXECUTORS:
             raise ValueError(f"executor must be one of {EXECUTORS}, got {self.executor!r}")
         if self.address and self.executor != "ray":

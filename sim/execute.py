@@ -45,11 +45,11 @@ import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-import pybullet as p
 
 from lfd.timing import PROFILES, plan_segments, step_clock
 from sim import layout as L
 from sim.attitude import tilts_of
+from sim.bullet import p
 from sim.follow import PlanFollower
 from sim.latency import charged_s, parse_latency
 

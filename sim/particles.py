@@ -11,9 +11,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as p
 
 from sim import layout as L
+from sim.bullet import p
 
 __all__ = [
     "ParticleSet",

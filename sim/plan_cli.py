@@ -19,13 +19,19 @@ from pathlib import Path
 
 from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
 from sim import require_pybullet
-from sim.scenarios import MAX_BASE_SEED, MAX_SCENARIO_SEED, SEED_STRIDE
+from sim.scenarios import MAX_BASE_SEED, MAX_SCENARIO_SEED, check_set_size
 from sim.sweep import EXECUTORS
 
 __all__ = ["PROG", "build_parser", "cli", "main", "parse"]
 
 PROG = "lfd-plan"
 MAX_ROADMAP = 100_000  # vertices: the spatiotemporal product holds T times as many (1e14 filled the memory)
+
+
+def check_roadmap_size(n: int | None) -> None:
+    """``UsageError`` unless ``--roadmap-size`` ``n`` is None (the planner's default) or in [10, ``MAX_ROADMAP``]."""
+    if n is not None and not 10 <= n <= MAX_ROADMAP:
+        raise UsageError(f"--roadmap-size must be in [10, {MAX_ROADMAP}], got {n}")
 
 
 def _seed_list(text: str) -> tuple[int, ...]:
@@ -116,8 +122,7 @@ def parse(argv=None, prog: str = PROG):
         args.latency = str(parse_latency(args.latency))
     except ValueError as e:
         raise UsageError(f"--latency: {e}") from None
-    if args.roadmap_size is not None and not 10 <= args.roadmap_size <= MAX_ROADMAP:
-        raise UsageError(f"--roadmap-size must be in [10, {MAX_ROADMAP}], got {args.roadmap_size}")
+    check_roadmap_size(args.roadmap_size)
     seed_opt = "--seed" if args.seeds is None else "--seeds"
     args.seeds = args.seeds or (0 if args.seed is None else args.seed,)
     for opt, seeds, top in (("--scenario-seed", (args.scenario_seed,), MAX_SCENARIO_SEED),
@@ -135,11 +140,12 @@ def parse(argv=None, prog: str = PROG):
     if args.evaluate:
         if args.task is None:
             raise UsageError("--evaluate needs --task powder|pour")
-        if args.scenarios < 1 or args.workers < 1:
-            raise UsageError(f"--scenarios and --workers must be at least 1, got {args.scenarios}, {args.workers}")
-        if args.scenarios > SEED_STRIDE:
-            raise UsageError(f"--scenarios must be at most {SEED_STRIDE} (the seeds' stride between scenario "
-                             f"sets: more would give two sets the same scenes), got {args.scenarios}")
+        try:
+            check_set_size(args.scenarios, "--scenarios")
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+        if args.workers < 1:
+            raise UsageError(f"--workers must be at least 1, got {args.workers}")
     elif args.model is None:
         raise UsageError("give --model DIR to plan once, or --evaluate --task TASK")
     elif args.model.is_file() or (args.model.suffix in (".pt", ".json") and not args.model.is_dir()):

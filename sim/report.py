@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-__all__ = ["PAPER_LATENCY_MS", "PAPER_SUCCESS", "format_table", "spread", "strict_json", "summarize"]
+__all__ = ["PAPER_LATENCY_MS", "PAPER_SUCCESS", "format_table", "spread", "stats", "strict_json", "summarize"]
 
 PAPER_LATENCY_MS = {"powder": 182, "pour": 200}  # the paper's planning latency (Tables I, II; 12 cores)
 PAPER_SUCCESS = {  # the paper's success rates (Table I: powder, 10 scenarios; Table II: pour)
@@ -26,10 +26,12 @@ def _pct(values, q) -> float:
     return float(np.percentile(values, q)) if len(values) else math.nan
 
 
-def _stats(values) -> dict:
-    """``{median, p95, mean}`` (NaN for none): the paper's latencies are means over 10 scenarios."""
-    return {"median": _pct(values, 50), "p95": _pct(values, 95),
-            "mean": float(np.mean(values)) if len(values) else math.nan}
+def stats(values) -> dict:
+    """``{median, p95, mean}`` of ``values``, leaving out the missing ones (None or NaN; all NaN
+    when none is left): the paper's latencies are means over 10 scenarios."""
+    v = np.asarray([x for x in values if x is not None], dtype=float)
+    v = v[~np.isnan(v)]
+    return {"median": _pct(v, 50), "p95": _pct(v, 95), "mean": float(np.mean(v)) if len(v) else math.nan}
 
 
 def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 0) -> dict:
@@ -67,8 +69,8 @@ def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 
         "collisions": int(sum(bool(r["contacts"]) for r in runs)),
         "mean_fraction_in_bowl": float(np.mean([r["fraction_in_bowl"] for r in runs])) if runs else math.nan,
         "learning_time_s": learning_time_s,
-        "initial_ms": _stats(init), "replan_ms": _stats(rep),
-        "build_ms": _stats(build), "reaction_ms": _stats(react), "improve_ms": _stats(improve),
+        "initial_ms": stats(init), "replan_ms": stats(rep),
+        "build_ms": stats(build), "reaction_ms": stats(react), "improve_ms": stats(improve),
         "latency_mode": sorted({r.get("latency", "none") for r in runs}),
         **_tilt_stats(runs),
         "tracking_max_mm": max([r["tracking_max_mm"] for r in runs if "tracking_max_mm" in r], default=math.nan),
@@ -97,7 +99,7 @@ def _tilt_stats(runs: list[dict]) -> dict:
         return [r[key] for r in runs if r.get(key) is not None and math.isfinite(r[key]) and _found(r)[0]]
 
     executed, planned = errors("tilt_error_deg"), errors("planned_tilt_error_deg")
-    return {"tilt_error_deg": _stats(np.abs(executed)), "planned_tilt_error_deg": _stats(np.abs(planned)),
+    return {"tilt_error_deg": stats(np.abs(executed)), "planned_tilt_error_deg": stats(np.abs(planned)),
             "tilt_bias_deg": _pct(executed, 50)}
 
 

@@ -56,6 +56,7 @@ __all__ = [
     "SEED_STRIDE",
     "SOURCE_RADIUS",
     "Scenario",
+    "check_set_size",
     "draw_scenario",
     "draw_scenarios",
     "with_bowl_move",
@@ -201,10 +202,21 @@ def draw_scenario(task: str, seed: int, reach=None) -> Scenario:
     raise RuntimeError(f"could not draw a solvable {task} scenario for seed {seed}")
 
 
+def check_set_size(n: int, name: str = "the number of scenarios") -> int:
+    """``n`` if it is a scenario set's size, in [1, ``SEED_STRIDE``]: more would give two sets the
+    same scenes (scenario ``S * SEED_STRIDE + i`` would be another set's too). ``ValueError``
+    naming ``name`` otherwise."""
+    if n < 1:
+        raise ValueError(f"{name} must be at least 1, got {n}")
+    if n > SEED_STRIDE:
+        raise ValueError(f"{name} must be at most {SEED_STRIDE} (the seeds' stride between scenario sets: "
+                         f"more would give two sets the same scenes), got {n}")
+    return n
+
+
 def draw_scenarios(task: str, n: int, base_seed: int = 0, reach=None) -> list[Scenario]:
     """``n`` scenarios of a set with ``base_seed`` (``reach``: as in ``draw_scenario``)."""
-    if n < 1:
-        raise ValueError(f"the number of scenarios must be at least 1, got {n}")
+    check_set_size(n)
     if reach is None:
         from sim.reach import DumpReach
         with DumpReach(task) as own:

@@ -21,11 +21,11 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import pybullet as p
 
 from lfd.robot.robots import BAXTER_LEFT, RobotSpec, example_robot_data_share, resolve_urdf
 from sim import assets, quiet_stdio
 from sim import layout as L
+from sim.bullet import p
 from sim.particles import ParticleSet, in_bowl_mask, in_tool_mask, particle_positions, remove_particles, spawn_particles
 
 __all__ = ["World", "main", "patched_urdf", "pose_to_matrix"]
