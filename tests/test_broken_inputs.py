@@ -286,6 +286,8 @@ def _plan(capsys, *args):
     (("--evaluate", "--task", "powder", "--seed", str(10**41)), "--seed must be in"),
     (("--evaluate", "--task", "powder", "--demos", "/nonexistent/demos"), "--demos /nonexistent/demos: no such folder"),
     (("--evaluate", "--task", "powder", "--scenarios", "100004"), "--scenarios must be at most 100003"),  # sets overlapped
+    (("--evaluate", "--task", "powder", "--scenarios", "0"), "--scenarios must be at least 1, got 0"),
+    (("--evaluate", "--task", "powder", "--workers", "0"), "--workers must be at least 1, got 0"),
 ])
 def test_plan_cli_checks_seeds_and_folders_first(args, fragment, capsys):
     _one_line_exit_2(_plan(capsys, *args), fragment)

@@ -41,6 +41,11 @@ BAD = [
      "unrecognized arguments: --ru 3"),
     ("soak-not-an-int", ["benchmarks/soak.py", "--replans", "x", "--out", "{tmp}"],
      "argument --replans: invalid int value: 'x'"),
+    ("reaction-scenes-0", ["benchmarks/reaction.py", "--scenes", "0", "--out", OUT], "--scenes must be at least 1, got 0"),
+    ("reaction-scenes-overlap", ["benchmarks/reaction.py", "--scenes", "100004", "--out", OUT],
+     "--scenes must be at most 100003"),
+    ("reaction-roadmap", ["benchmarks/reaction.py", "--roadmap-size", "5", "--out", OUT],
+     "--roadmap-size must be in [10, 100000], got 5"),
 ]
 
 # (id, argv): stdout is a pipe whose reader has already gone

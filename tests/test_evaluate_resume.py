@@ -264,6 +264,25 @@ def test_summary_reaction_times_only_from_timed_runs():
     assert new_line.split()[-3:-1] == ["24ms", "24ms"]  # the reaction's median and mean (13, 34 ms)
 
 
+def test_stats_leave_out_what_was_not_measured():
+    """``{median, p95, mean}`` over the measured values only (None and NaN left out; the
+    benchmarks pass None for a scene without a reaction); all NaN when none was measured."""
+    s = report.stats([10.0, None, math.nan, 20.0, 40.0])
+    assert s == {"median": 20.0, "p95": pytest.approx(20 + 0.9 * 20), "mean": pytest.approx(70 / 3)}
+    assert all(math.isnan(x) for x in report.stats([None, math.nan]).values())
+    assert report.strict_json(report.stats([])) == {"median": None, "p95": None, "mean": None}
+
+
+def test_a_scenario_set_is_at_most_the_seeds_stride():
+    """Scenario ``S * SEED_STRIDE + i`` of set S: a larger set would share scenes with set S + 1."""
+    from sim.scenarios import SEED_STRIDE, check_set_size
+    assert check_set_size(SEED_STRIDE) == SEED_STRIDE
+    with pytest.raises(ValueError, match=f"n_scenarios must be at most {SEED_STRIDE}"):
+        ev.EvalSettings(task=TASK, n_scenarios=SEED_STRIDE + 1)
+    with pytest.raises(ValueError, match="the number of scenarios must be at least 1, got 0"):
+        draw_scenarios(TASK, 0)
+
+
 def test_summary_tilt_error_against_the_demonstrations():
     """``tilt_error_deg`` (the tool's largest tilt minus the demonstrations' mean, per run) is
     summarized as the median and p95 of its absolute value, its sign as ``tilt_bias_deg``; runs
