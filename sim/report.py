@@ -51,7 +51,7 @@ def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 
     of them all."""
     init = [r["initial_ms"] for r in runs if not math.isnan(r["initial_ms"]) and _found(r)[0]]
     rep = [x for r in runs for x, ok in zip(r["replan_ms"], _found(r)[1:]) if ok]
-    build = [r["build_ms"] for r in runs if not math.isnan(r.get("build_ms", math.nan))]
+    build = [r.get("build_ms") for r in runs]  # (stats leaves out the runs without one)
     react, improve = [], []
     for r in runs:
         if len(r.get("replan_update_ms", ())) != len(r["replan_ms"]):
