@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lfd.cli import ArgumentParser, UsageError, run_main
+from lfd.cli import ArgumentParser, run_main
 
 ROOT = Path(__file__).resolve().parent.parent
 PARTS = ("cost_s", "heuristic_s", "search_s", "collision_s", "searches", "heuristics", "expanded",
@@ -110,10 +110,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from sim.plan_cli import check_roadmap_size
     from sim.scenarios import check_set_size, draw_scenarios, with_bowl_move
-    try:
-        check_set_size(args.scenes, "--scenes")
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    check_set_size(args.scenes, "--scenes")
     check_roadmap_size(args.roadmap_size)
     from lfd.learning.model import TaskModel
     from lfd.robot.kinematics import KinematicModel

@@ -140,10 +140,7 @@ def parse(argv=None, prog: str = PROG):
     if args.evaluate:
         if args.task is None:
             raise UsageError("--evaluate needs --task powder|pour")
-        try:
-            check_set_size(args.scenarios, "--scenarios")
-        except ValueError as e:
-            raise UsageError(str(e)) from None
+        check_set_size(args.scenarios, "--scenarios")
         if args.workers < 1:
             raise UsageError(f"--workers must be at least 1, got {args.workers}")
     elif args.model is None:

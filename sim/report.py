@@ -49,7 +49,7 @@ def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 
     have no ``build_ms``/``replan_update_ms`` and are left out of those two. A plan that was not
     found (no path, unreachable: an answer, often at once) is no planning latency and is left out
     of them all."""
-    init = [r["initial_ms"] for r in runs if not math.isnan(r["initial_ms"]) and _found(r)[0]]
+    init = [r["initial_ms"] for r in runs if _found(r)[0]]
     rep = [x for r in runs for x, ok in zip(r["replan_ms"], _found(r)[1:]) if ok]
     build = [r.get("build_ms") for r in runs]  # (stats leaves out the runs without one)
     react, improve = [], []

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lfd.errors import UserInputError
 from sim import layout as L
 
 SEED_STRIDE = 100_003  # scenario i of the set with base seed S has seed S * SEED_STRIDE + i
@@ -204,12 +205,13 @@ def draw_scenario(task: str, seed: int, reach=None) -> Scenario:
 
 def check_set_size(n: int, name: str = "the number of scenarios") -> int:
     """``n`` if it is a scenario set's size, in [1, ``SEED_STRIDE``]: more would give two sets the
-    same scenes (scenario ``S * SEED_STRIDE + i`` would be another set's too). ``ValueError``
-    naming ``name`` otherwise."""
+    same scenes (scenario ``S * SEED_STRIDE + i`` would be another set's too). Otherwise
+    ``lfd.errors.UserInputError`` (a ``ValueError``; one line and exit status 2 in a command) naming
+    ``name``."""
     if n < 1:
-        raise ValueError(f"{name} must be at least 1, got {n}")
+        raise UserInputError(f"{name} must be at least 1, got {n}")
     if n > SEED_STRIDE:
-        raise ValueError(f"{name} must be at most {SEED_STRIDE} (the seeds' stride between scenario sets: "
+        raise UserInputError(f"{name} must be at most {SEED_STRIDE} (the seeds' stride between scenario sets: "
                          f"more would give two sets the same scenes), got {n}")
     return n
 
