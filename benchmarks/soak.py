@@ -45,8 +45,10 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=ROOT / "runs" / "bench")
     args = ap.parse_args(argv)
-    if args.replans < 60 or args.roadmap_size < 10:
-        raise UsageError("--replans must be >= 60 and --roadmap-size >= 10")
+    if args.replans < 60:
+        raise UsageError(f"--replans must be at least 60, got {args.replans}")
+    from sim.plan_cli import check_roadmap_size
+    check_roadmap_size(args.roadmap_size)
     if not (args.model / "model.pt").is_file():
         raise UsageError(f"--model {args.model}: no model.pt (train one: python train.py --task powder "
                          f"--out {args.model})")
@@ -54,11 +56,11 @@ def main(argv=None) -> int:
 
     import torch
 
-    from lfd.planning.task_planner import TaskPlanner, TaskPlannerSettings
     from lfd.robot.kinematics import KinematicModel
     from sim import layout as L
     from sim.collision import make_collision_fns
     from sim.model_check import load_checked_model
+    from sim.runner import scene_planner
     from sim.scenarios import draw_scenario
     from sim.world import World
 
@@ -70,9 +72,7 @@ def main(argv=None) -> int:
     lat, statuses, edges = [], {}, []
     with World(scenario.task, scenario=scenario.placements, n_particles=0) as world:
         fns = make_collision_fns(world)
-        planner = TaskPlanner(model, fns.collision_fn, fns.segment_fn,
-                              batch_collision_fn=fns.hit_fn,
-                              settings=TaskPlannerSettings(n_vertices=args.roadmap_size, seed=args.seed))
+        planner = scene_planner(model, fns, task, args.roadmap_size, args.seed)  # an evaluation run's planner
         names, poses = world.sensed_landmarks()
         bowl = names.index("bowl")
         planner.update_landmarks(names, poses)
