@@ -219,15 +219,42 @@ def _row_problem(r: dict) -> str | None:
     return f"a finished run with missing or malformed {', '.join(bad)}" if bad else None
 
 
-def _read_log(log: Path, latency: str, run_settings: dict) -> tuple[dict, dict, int, bool]:
+# settings of a run that only the CPU's load depends on: they decide a run's identity when its
+# latency is measured (the world moves on for the planner's wall-clock time, which the other
+# processes on the machine lengthen); runs logged before they were recorded count
+_LOAD_SETTINGS = ("executor", "workers")
+
+
+def run_settings_of(settings: EvalSettings, models: Path) -> dict:
+    """What makes two logged runs of one (variant, draw, scenario) the same run, besides the
+    latency mode and the executor's pace: the task, the roadmap size, the models folder, the bowl
+    move when set, and with measured latency the executor and its workers (or cluster address)."""
+    out: dict = {"task": settings.task, "roadmap_size": settings.roadmap_size, "models": str(models)}
+    if settings.move_bowl:  # (only then: runs logged before the option existed still count)
+        out["move_bowl"] = True
+    if settings.latency == "measured":
+        out["executor"] = settings.executor
+        out["workers"] = settings.address or settings.workers
+    return out
+
+
+def _same_settings(logged: dict, wanted: dict) -> bool:
+    """Whether a run logged with ``logged`` settings counts for ``wanted`` ones (a load setting
+    the row does not record counts as the same)."""
+    keys = set(logged) | set(wanted)
+    return all(logged.get(k) == wanted.get(k) for k in keys if not (k in _LOAD_SETTINGS and k not in logged))
+
+
+def _read_log(log: Path, latency: str, run_settings: dict) -> tuple[dict, dict, int, int, bool]:
     """The runs logged in ``log`` that count for an evaluation in latency mode ``latency`` with
-    ``run_settings`` (task, roadmap size, models folder; rows logged before they were recorded count):
-    ``(done, crashed, lines, cut)``, the first two keyed by ``(variant, demo_seed, scenario)``: finished runs,
-    runs that failed twice (run again), how many readable lines the log holds, and whether its
-    last line was cut (by a kill while it was written)."""
+    ``run_settings`` (``run_settings_of``; rows logged before they were recorded count):
+    ``(done, crashed, lines, other, cut)``, the first two keyed by ``(variant, demo_seed, scenario)``:
+    finished runs, runs that failed twice (run again), how many readable lines the log holds, how
+    many of them were made with other settings (run again), and whether its last line was cut (by
+    a kill while it was written)."""
     done: dict = {}
     crashed: dict = {}
-    lines = 0
+    lines = other = 0
     text = log.read_text() if log.is_file() else ""
     for n, line in enumerate(text.splitlines(), 1):
         try:
@@ -241,7 +268,8 @@ def _read_log(log: Path, latency: str, run_settings: dict) -> tuple[dict, dict, 
         # frozen world ("none"); with a dwell other than the paper's interval (an option since
         # removed), with other edge costs; paced otherwise
         if r.get("latency", "none") != latency or r.get("dwell", "interval") != "interval" \
-                or r.get("pace") != EXEC_PACE or r.get("settings", run_settings) != run_settings:
+                or r.get("pace") != EXEC_PACE or not _same_settings(r.get("settings", run_settings), run_settings):
+            other += 1
             continue
         why = _row_problem(r)
         if why:
@@ -254,7 +282,7 @@ def _read_log(log: Path, latency: str, run_settings: dict) -> tuple[dict, dict, 
             done[key] = r
             crashed.pop(key, None)
     cut = bool(text) and not text.endswith("\n")  # the last line was cut by a kill
-    return done, crashed, lines, cut
+    return done, crashed, lines, other, cut
 
 
 class _Progress:
@@ -290,18 +318,20 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
 
     ``progress``: a tqdm-like class for the bar; ``resume``: continue the sweep logged in
     ``out_dir/runs.jsonl`` (without it, a folder that holds logged runs is refused: its runs
-    would be mixed with this sweep's). Logged runs made for another task, roadmap size or
-    models folder are run again, not counted."""
+    would be mixed with this sweep's). Logged runs made with other settings (``run_settings_of``)
+    are run again, not counted, and said so on stderr."""
     by_name = {v.name: v for v in VARIANTS}
     variants = [by_name[n] for n in settings.variants]
     log = out_dir / "runs.jsonl"
-    run_settings = {"task": settings.task, "roadmap_size": settings.roadmap_size, "models": str(models)}
-    if settings.move_bowl:  # (only then: runs logged before the option existed still count)
-        run_settings["move_bowl"] = True
-    done, crashed, lines, cut = _read_log(log, settings.latency, run_settings)
+    run_settings = run_settings_of(settings, models)
+    done, crashed, lines, other, cut = _read_log(log, settings.latency, run_settings)
     if lines and not resume:
         raise UsageError(f"{out_dir} already holds {lines} logged run(s): pass --resume to continue that "
                          "evaluation, or choose another --out")
+    if other:
+        print(f"[evaluate] {other} logged run(s) in {log} were made with other settings (latency mode, task, "
+              f"roadmap size, models, bowl move, or with measured latency the executor and workers, which "
+              f"set the CPU's load): they are run again with {run_settings}", file=sys.stderr, flush=True)
     if settings.executor == "ray":
         require_ray(settings.address)  # before hours of training, not after
     out_dir.mkdir(parents=True, exist_ok=True)

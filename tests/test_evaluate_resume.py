@@ -388,3 +388,35 @@ def test_hand_edited_log_row_is_named_not_crashed_on(tmp_path, models, monkeypat
     with pytest.raises(UsageError, match=r"runs.jsonl, line 2: ") as info:
         ev.evaluate(_settings(), out, models, resume=True)
     assert fragment in str(info.value) and fake.calls == []
+
+
+def test_measured_runs_of_another_cpu_load_are_run_again(tmp_path, models, monkeypatch, capsys):
+    """With measured latency the executor and its workers set the CPU's load, which lengthens
+    every plan's charged time: ``--resume`` with other workers runs everything again and says
+    why; in a frozen world they do not matter; rows logged before they were recorded count."""
+    out = tmp_path / "eval"
+    monkeypatch.setattr(ev, "run_one", FakeRunOne())
+    ev.evaluate(_settings(), out, models)
+    rows = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
+    assert all(r["settings"]["workers"] == 1 and r["settings"]["executor"] == "local" for r in rows)
+    capsys.readouterr()
+    ev.evaluate(replace(_settings(), workers=2), out, models, resume=True)  # (the fake runs in the workers)
+    assert f"{len(rows)} logged run(s)" in capsys.readouterr().err
+    log = out / "runs.jsonl"
+    redone = [json.loads(line) for line in log.read_text().splitlines()][len(rows):]
+    assert sorted((r["variant"], r["scenario"]) for r in redone) == sorted(_all_pairs())
+    assert all(r["settings"]["workers"] == 2 for r in redone)
+    # rows without the load settings (logged before they were recorded) count for any
+    for r in rows:
+        del r["settings"]["workers"], r["settings"]["executor"]
+    log.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    ev.evaluate(replace(_settings(), workers=2), out, models, resume=True)
+    assert len(log.read_text().splitlines()) == len(rows)
+    # a frozen world: the load is not part of a run
+    frozen = tmp_path / "frozen"
+    monkeypatch.setattr(ev, "run_one", FakeRunOne())
+    ev.evaluate(replace(_settings(), latency="none"), frozen, models)
+    n_frozen = len((frozen / "runs.jsonl").read_text().splitlines())
+    ev.evaluate(replace(_settings(), latency="none", workers=2), frozen, models, resume=True)
+    assert len((frozen / "runs.jsonl").read_text().splitlines()) == n_frozen
+    assert ev.run_settings_of(replace(_settings(), executor="ray", address="h:6379"), models)["workers"] == "h:6379"
