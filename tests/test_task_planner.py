@@ -70,6 +70,29 @@ def test_task_planner_plans_and_reports_missing_landmark(kin):
     assert planner.plan(q0, 0).status == "missing_landmark"
 
 
+def test_landmark_poses_of_another_shape_or_not_rigid_are_refused_before_the_build(kin):
+    """A tracker's poses in another convention (a scaled rotation, a bottom row that is not
+    0 0 0 1, one pose short) raise a ValueError naming the problem, and build nothing; a NaN
+    pose is a landmark not sensed, not an error."""
+    planner = TaskPlanner(_model(kin), lambda q: False, lambda a, b: False,
+                          settings=TaskPlannerSettings(n_vertices=20, seed=0))
+    bowl = np.eye(4)
+    bowl[:3, 3] = [0.7, 0.4, -0.1]
+    scaled, skewed = bowl.copy(), bowl.copy()
+    scaled[:3, :3] *= 1.001  # millimetres read as metres would be far worse; this is 0.1%
+    skewed[3, 0] = 0.01
+    for poses, fragment in [(np.stack([np.eye(4), scaled]), "'bowl' is not a rigid transform"),
+                            (np.stack([skewed, bowl]), "'marker' is not a rigid transform"),
+                            (bowl[None], r"shape \(2, 4, 4\) for the 2 names, got \(1, 4, 4\)"),
+                            (np.stack([np.eye(4), bowl])[:, :3], r"got \(2, 3, 4\)")]:
+        with pytest.raises(ValueError, match=fragment):
+            planner.update_landmarks(["marker", "bowl"], poses)
+        assert planner.roadmap is None
+    unsensed = np.stack([np.eye(4), np.full((4, 4), np.nan)])
+    planner.update_landmarks(["marker", "bowl"], unsensed)
+    assert planner.plan(np.zeros(7), 0).status == "missing_landmark"
+
+
 def _pose(rotvec, position):
     T = np.eye(4)
     T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()

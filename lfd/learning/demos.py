@@ -44,7 +44,7 @@ from lfd.errors import UserInputError
 from lfd.learning.demo_checks import far_landmark, jumping_landmark, unusable_demos
 from lfd.learning.tasks import MAX_DT, TaskSpec, check_point, check_stride
 from lfd.robot.robots import RobotSpec
-from lfd.robot.se3 import rigid_errors
+from lfd.robot.se3 import not_rigid, rigid_errors
 
 __all__ = [
     "REQUIRED_KEYS",
@@ -63,7 +63,6 @@ __all__ = [
 
 REQUIRED_KEYS = ("q", "dt", "joint_names", "landmark_poses", "landmark_names", "robot")
 LIMIT_TOLERANCE = 0.02  # rad: recorded joints may sit this far outside the URDF limits
-RIGID_TOLERANCE = 1e-4  # |R^T R - I|, |det R - 1| and bottom-row error allowed in a landmark pose
 
 
 class DemoFormatError(UserInputError):
@@ -234,7 +233,7 @@ def _landmark_poses(where: str, value, names: tuple, n_samples: int, dt: float) 
     if poses.shape[-3] == 0:
         raise _fail(where, "no sensed landmarks: 'landmark_poses' is empty")
     ortho, det, bottom = rigid_errors(poses)
-    bad = np.argwhere((ortho > RIGID_TOLERANCE) | (det > RIGID_TOLERANCE) | (bottom > RIGID_TOLERANCE))
+    bad = np.argwhere(not_rigid(poses))
     if bad.size:
         idx = tuple(int(x) for x in bad[0])
         at = f" at sample {idx[0]}" if poses.ndim == 4 else ""

@@ -51,6 +51,7 @@ from lfd.planning.planner import ClosedLoopPlanner, PlanResult
 from lfd.planning.roadmap import Roadmap
 from lfd.planning.stepcost import FK_BATCH, ModelStepCost
 from lfd.planning.task_settings import TaskPlannerSettings, default_vertices
+from lfd.robot.se3 import not_rigid
 
 __all__ = ["TaskPlanner", "TaskPlannerSettings"]  # the settings live in lfd.planning.task_settings
 
@@ -160,7 +161,14 @@ class TaskPlanner:
         and new place are checked again. With ``grow=False`` a far move of the task landmarks
         only sets ``growth_pending``; ``grow()`` adds the biased vertices later."""
         names = [str(n) for n in names]
-        poses = np.asarray(T_world_landmarks, dtype=float).reshape(len(names), 4, 4)
+        poses = np.asarray(T_world_landmarks, dtype=float)
+        if poses.shape != (len(names), 4, 4):
+            raise ValueError(f"T_world_landmarks must have shape ({len(names)}, 4, 4) for the {len(names)} "
+                             f"names, got {poses.shape}")
+        bad = np.flatnonzero(not_rigid(poses))  # (a NaN pose is a landmark not sensed: allowed)
+        if len(bad):
+            raise ValueError(f"the pose of landmark {names[bad[0]]!r} is not a rigid transform (a rotation "
+                             f"and a translation, bottom row 0 0 0 1): {poses[bad[0]].tolist()}")
         self._invalidate_moved(names, poses)
         try:
             lm = self.model.select_landmarks(names, T_world_landmarks)
