@@ -79,7 +79,7 @@ def test_landmark_poses_of_another_shape_or_not_rigid_are_refused_before_the_bui
     bowl = np.eye(4)
     bowl[:3, 3] = [0.7, 0.4, -0.1]
     scaled, skewed = bowl.copy(), bowl.copy()
-    scaled[:3, :3] *= 1.001  # millimetres read as metres would be far worse; this is 0.1%
+    scaled[:3, :3] *= 1.001  # a rotation 0.1% too long (a scale left in the transform)
     skewed[3, 0] = 0.01
     for poses, fragment in [(np.stack([np.eye(4), scaled]), "'bowl' is not a rigid transform"),
                             (np.stack([skewed, bowl]), "'marker' is not a rigid transform"),
