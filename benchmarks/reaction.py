@@ -47,9 +47,9 @@ def _plan_row(res, update_s: float = 0.0) -> dict:
 
 def _summary(values) -> dict:
     """``sim.report.stats`` of the scenes' ``values`` that were measured, and their number."""
-    from sim.report import stats
+    from sim.report import measured, stats
 
-    return {**stats(values), "n": sum(x is not None and not np.isnan(x) for x in values)}
+    return {**stats(values), "n": len(measured(values))}
 
 
 def bench_scene(model, task: str, scenario, roadmap_size: int | None = None) -> dict:

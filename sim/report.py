@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-__all__ = ["PAPER_LATENCY_MS", "PAPER_SUCCESS", "format_table", "spread", "stats", "strict_json", "summarize"]
+__all__ = ["PAPER_LATENCY_MS", "PAPER_SUCCESS", "format_table", "measured", "spread", "stats", "strict_json", "summarize"]
 
 PAPER_LATENCY_MS = {"powder": 182, "pour": 200}  # the paper's planning latency (Tables I, II; 12 cores)
 PAPER_SUCCESS = {  # the paper's success rates (Table I: powder, 10 scenarios; Table II: pour)
@@ -26,11 +26,16 @@ def _pct(values, q) -> float:
     return float(np.percentile(values, q)) if len(values) else math.nan
 
 
-def stats(values) -> dict:
-    """``{median, p95, mean}`` of ``values``, leaving out the missing ones (None or NaN; all NaN
-    when none is left): the paper's latencies are means over 10 scenarios."""
+def measured(values) -> np.ndarray:
+    """``values`` without the missing ones (None or NaN), as floats."""
     v = np.asarray([x for x in values if x is not None], dtype=float)
-    v = v[~np.isnan(v)]
+    return v[~np.isnan(v)]
+
+
+def stats(values) -> dict:
+    """``{median, p95, mean}`` of the ``measured`` ``values`` (all NaN when none is): the paper's
+    latencies are means over 10 scenarios."""
+    v = measured(values)
     return {"median": _pct(v, 50), "p95": _pct(v, 95), "mean": float(np.mean(v)) if len(v) else math.nan}
 
 

@@ -212,7 +212,7 @@ def check_set_size(n: int, name: str = "the number of scenarios") -> int:
         raise UserInputError(f"{name} must be at least 1, got {n}")
     if n > SEED_STRIDE:
         raise UserInputError(f"{name} must be at most {SEED_STRIDE} (the seeds' stride between scenario sets: "
-                         f"more would give two sets the same scenes), got {n}")
+                             f"more would give two sets the same scenes), got {n}")
     return n
 
 

@@ -232,14 +232,14 @@ def _landmark_poses(where: str, value, names: tuple, n_samples: int, dt: float) 
                            f"got {poses.shape}")
     if poses.shape[-3] == 0:
         raise _fail(where, "no sensed landmarks: 'landmark_poses' is empty")
-    ortho, det, bottom = rigid_errors(poses)
     bad = np.argwhere(not_rigid(poses))
     if bad.size:
         idx = tuple(int(x) for x in bad[0])
+        ortho, det, bottom = rigid_errors(poses[idx])
         at = f" at sample {idx[0]}" if poses.ndim == 4 else ""
         raise _fail(where, f"landmark {names[idx[-1]]!r} pose{at} is not a rigid transform "
-                           f"(|R^T R - I| = {ortho[idx]:.2g}, |det R - 1| = {det[idx]:.2g}, "
-                           f"bottom row error {bottom[idx]:.2g})")
+                           f"(|R^T R - I| = {ortho:.2g}, |det R - 1| = {det:.2g}, "
+                           f"bottom row error {bottom:.2g})")
     why = far_landmark(poses, names) or jumping_landmark(poses, names, dt)
     if why:
         raise _fail(where, why)

@@ -171,7 +171,7 @@ class TaskPlanner:
                              f"and a translation, bottom row 0 0 0 1): {poses[bad[0]].tolist()}")
         self._invalidate_moved(names, poses)
         try:
-            lm = self.model.select_landmarks(names, T_world_landmarks)
+            lm = self.model.select_landmarks(names, poses)
         except ValueError as e:
             self._missing = str(e)
             if self.planner is not None:
