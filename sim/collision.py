@@ -132,16 +132,19 @@ def _overlap(a: np.ndarray, b: np.ndarray, pad: float = 0.0) -> np.ndarray:
     return ((a[..., 0, :] - pad <= b[..., 1, :]) & (b[..., 0, :] <= a[..., 1, :] + pad)).all(axis=-1)
 
 
-def _too_close(client, robot, moving, link_boxes, bodies, body_boxes) -> int:
-    """The first scene body (its index in ``bodies``, -1 for none) a moving link comes within
+def _near(link_boxes: np.ndarray, body_boxes: np.ndarray) -> np.ndarray:
+    """Which (moving link, scene body) pairs have boxes within ``OBSTACLE_MARGIN``: ``link_boxes
+    (..., M, 2, 3)``, ``body_boxes (E, 2, 3)`` -> ``(..., M, E)`` bool."""
+    return _overlap(link_boxes[..., :, None, :, :], body_boxes, OBSTACLE_MARGIN)
+
+
+def _too_close(client, robot, moving, bodies, near) -> int:
+    """The first scene body (its index, -1 for none) a moving link comes within
     ``OBSTACLE_MARGIN`` of: exact distances (``getClosestPoints``) for the (link, body) pairs
-    whose AABBs ``(M, 2, 3)``, ``(E, 2, 3)`` are that close. (Contact points from
+    ``near (M, E)`` whose boxes are that close (``_near``), link by link; ``bodies (E,)``. (Contact points from
     ``performCollisionDetection`` are no substitute: Bullet reports positive-distance points for
     some shape pairs only, e.g. not for a finger's box 0.9 mm from a cylinder, which a run then
     touched.)"""
-    if not len(bodies):
-        return -1
-    near = _overlap(link_boxes[:, None], body_boxes[None], OBSTACLE_MARGIN)  # (M, E)
     for i, e in zip(*np.nonzero(near)):
         pts = p.getClosestPoints(robot, bodies[e], OBSTACLE_MARGIN, moving[i], -1, physicsClientId=client)
         if any(pt[8] < OBSTACLE_MARGIN for pt in pts):
@@ -150,7 +153,8 @@ def _too_close(client, robot, moving, link_boxes, bodies, body_boxes) -> int:
 
 
 def _inplace_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
-    """``(check_here(q), restored)`` working in the world's own client."""
+    """``(check_here(q), restored, close, near_fn)`` working in the world's own client; its
+    ``near_fn`` gives None: PyBullet's boxes are read per configuration."""
     client, robot = world.client, world.robot
     all_links = moving + fixed
     pair_a = np.array([moving.index(a) for a, _ in pairs])
@@ -190,10 +194,10 @@ def _inplace_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
             if hits(pairs[k][0], pairs[k][1]):
                 return "self"
         bodies, env, names = env_boxes()
-        e = _too_close(client, robot, moving, moving_aabbs, bodies, env)
+        e = _too_close(client, robot, moving, bodies, _near(moving_aabbs, env))
         return names[e] if e >= 0 else ""
 
-    return check_here, restored, lambda: None
+    return check_here, restored, lambda: None, lambda Q: None
 
 
 def _scene_body(shadow: int, body: int) -> int:
@@ -230,8 +234,12 @@ def _shadow_robot(world, shadow: int, shaped, pairs) -> int:
 
 
 def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
-    """``(check_here(q), restored, close)`` working in a private collision-only client."""
+    """``(check_here(q, near=None), restored, close, near_fn)`` working in a private
+    collision-only client; ``near_fn(Q (B, d)) -> (B, M, E)``, the (link, scene body) pairs to
+    measure for a batch (``sim.link_boxes``), or None for a batch too small to gain from it."""
+    from lfd.robot.kinematics import KinematicModel
     from sim import assets
+    from sim.link_boxes import MIN_BATCH, LinkBoxes
 
     shadow = p.connect(p.DIRECT)
     if shadow < 0:
@@ -239,6 +247,7 @@ def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
     try:
         robot = _shadow_robot(world, shadow, moving + fixed, pairs)
         bodies = {"table": _scene_body(shadow, assets.build_table(shadow))}
+        link_boxes = LinkBoxes(shadow, robot, joints, moving, KinematicModel.from_spec(world.spec))
     except BaseException:  # no private client is left connected when its set-up fails
         p.disconnect(shadow)
         raise
@@ -259,7 +268,13 @@ def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
         cache.update(version=world.scene_version, bodies=list(bodies.values()), names=list(bodies),
                      boxes=np.array([p.getAABB(b, -1, physicsClientId=shadow) for b in bodies.values()]))
 
-    def check_here(q) -> str:
+    def near_fn(Q):
+        if len(Q) < MIN_BATCH:
+            return None
+        sync()
+        return _near(link_boxes(Q), cache["boxes"])  # (B, M, E)
+
+    def check_here(q, near=None) -> str:
         sync()
         p.resetJointStatesMultiDof(robot, joints, [[v] for v in q.tolist()], physicsClientId=shadow)
         p.performCollisionDetection(physicsClientId=shadow)
@@ -267,8 +282,10 @@ def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
             # (flag, bodyA, bodyB, linkA, linkB, ..., distance at 8): self collision is a touch
             if pt[8] < 0.0 and (pt[3] in moving_set or pt[4] in moving_set):
                 return "self"
-        link_boxes = np.array([p.getAABB(robot, k, physicsClientId=shadow) for k in moving])  # (M, 2, 3)
-        e = _too_close(shadow, robot, moving, link_boxes, cache["bodies"], cache["boxes"])
+        if near is None:
+            near = _near(np.array([p.getAABB(robot, k, physicsClientId=shadow) for k in moving]),  # (M, 2, 3)
+                         cache["boxes"])
+        e = _too_close(shadow, robot, moving, cache["bodies"], near)
         return cache["names"][e] if e >= 0 else ""
 
     closed = []
@@ -281,7 +298,7 @@ def _shadow_checker(world, joints, moving, fixed, pairs, obstacles, ignore):
             if p.isConnected(shadow):
                 p.disconnect(shadow)
 
-    return check_here, contextlib.nullcontext, close
+    return check_here, contextlib.nullcontext, close, near_fn
 
 
 def make_collision_fns(world, obstacles: bool = True, resolution: float = 0.05, ignore=(),
@@ -315,7 +332,7 @@ def make_collision_fns(world, obstacles: bool = True, resolution: float = 0.05, 
     moving, fixed, pairs = self_pairs(client, robot, joints)
     levers = joint_levers(world)  # (7,) m
     make = _shadow_checker if method == "shadow" else _inplace_checker
-    check_here, restored, close = make(world, joints, moving, fixed, pairs, bool(obstacles), set(ignore))
+    check_here, restored, close, near_fn = make(world, joints, moving, fixed, pairs, bool(obstacles), set(ignore))
 
     def within(q) -> bool:
         return bool(np.all(q >= lower) and np.all(q <= upper))
@@ -341,9 +358,11 @@ def make_collision_fns(world, obstacles: bool = True, resolution: float = 0.05, 
             raise ValueError(f"Q must have shape (B, {dof}), got {Q.shape}")
         ok = np.all((Q >= lower) & (Q <= upper), axis=1)
         out = np.where(ok, "", "limits").astype(object)
+        idx = np.flatnonzero(ok)
+        near = near_fn(Q[idx])  # (B', M, E) or None
         with restored():
-            for i in np.flatnonzero(ok):
-                out[i] = check_here(Q[i])
+            for n, i in enumerate(idx):
+                out[i] = check_here(Q[i]) if near is None else check_here(Q[i], near[n])
         return out.astype(str)
 
     def batch_collision_fn(Q) -> np.ndarray:

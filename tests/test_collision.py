@@ -259,3 +259,54 @@ def test_segments_are_checked_finely_enough_for_the_margin(world):
     assert calls[1] == 4 and calls[0] >= 10
     with pytest.raises(ValueError, match="max_travel"):
         make_collision_fns(world, max_travel=0.0)
+
+
+def test_batched_boxes_hold_pybullets_and_give_the_same_answers(world, roll_under_gripper):
+    """``sim.link_boxes``: the moving links' boxes computed for a batch from the forward
+    kinematics contain PyBullet's ``getAABB`` boxes in every configuration, and a batch large enough
+    to use them (``MIN_BATCH``) names exactly what the configurations checked one by one (PyBullet's
+    boxes) name, the same first hit among several bodies included."""
+    from lfd.robot.kinematics import KinematicModel
+    from sim.arm_geometry import self_pairs
+    from sim.link_boxes import MIN_BATCH, LinkBoxes
+
+    c, robot = world.client, world.robot
+    moving, _, _ = self_pairs(c, robot, world.arm_joints)
+    boxes = LinkBoxes(c, robot, world.arm_joints, moving, KinematicModel.from_spec(world.spec))
+    rng = np.random.default_rng(8)
+    Q = L.HOME_Q + rng.normal(0, 0.8, (30, 7))  # (30, 7)
+    B = boxes(Q)                                 # (30, M, 2, 3)
+    q_saved = world.get_q()
+    try:
+        for q, b in zip(Q, B):
+            world.set_q(q)
+            exact = np.array([p.getAABB(robot, k, physicsClientId=c) for k in moving])  # (M, 2, 3)
+            assert (b[:, 0] <= exact[:, 0]).all() and (b[:, 1] >= exact[:, 1]).all()
+            assert np.abs(b - exact).max() < 0.15  # and not so loose that every pair is measured
+    finally:
+        world.set_q(q_saved)
+
+    fns = make_collision_fns(world)
+    world.place_object("vase", (0.75, 0.6))
+    try:
+        Q = L.HOME_Q + rng.normal(0, 0.3, (4 * MIN_BATCH, 7))  # around the roll, the vase and the table
+        batch = fns.hit_fn(Q)
+        assert batch.tolist() == [fns.hit_fn(q[None])[0] for q in Q]
+        assert {"", "paper_towels", "table"} <= set(batch.tolist())
+    finally:
+        world.remove_object("vase")
+        fns.close()
+
+
+def test_batched_boxes_refuse_another_robots_kinematics(world):
+    """A kinematic model of another URDF than the world's robot is refused at set-up, not used."""
+    from lfd.robot.kinematics import KinematicModel
+    from lfd.robot.robots import PANDA
+    from sim.arm_geometry import self_pairs
+    from sim.link_boxes import LinkBoxes
+
+    moving, _, _ = self_pairs(world.client, world.robot, world.arm_joints)
+    q_saved = world.get_q()
+    with pytest.raises(RuntimeError, match="disagree about where it is"):
+        LinkBoxes(world.client, world.robot, world.arm_joints, moving, KinematicModel.from_spec(PANDA))
+    assert np.allclose(world.get_q(), q_saved)  # the arm put back

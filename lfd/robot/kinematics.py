@@ -190,16 +190,26 @@ class KinematicModel:
             return T_world_ee[0]
         return T_world_ee.reshape(*q.shape[:-1], 4, 4)
 
+    @property
+    def frame_names(self) -> tuple[str, ...]:
+        """The chain's frames (URDF link names), root first, the end link last: the order of
+        ``frame_poses``."""
+        return tuple(self._chain.get_frame_names(exclude_fixed=False))
+
+    def frame_poses(self, q) -> torch.Tensor:
+        """Poses ``T_world_frame (B, L, 4, 4)`` of every frame of the chain (``frame_names``'
+        order) from one forward pass: ``q (B, d)``."""
+        qb = self._check_q(q).reshape(-1, self.dof)
+        frames = self._chain.forward_kinematics(qb, end_only=False)  # {name: Transform3d}
+        return torch.stack([frames[n].get_matrix().expand(len(qb), 4, 4) for n in self.frame_names], dim=1)
+
     def frame_origins(self, q) -> tuple[torch.Tensor, torch.Tensor]:
         """Origins of every frame of the chain ``(B, L, 3)`` (root to end link, world frame) and
         the end-link pose ``T_world_ee (B, 4, 4)``, from one forward pass: ``q (B, d)``. The arm
         lies within the union of the segments between consecutive origins grown by the links'
         radii (used to bound the space a motion sweeps)."""
-        qb = self._check_q(q).reshape(-1, self.dof)
-        frames = self._chain.forward_kinematics(qb, end_only=False)  # {name: Transform3d}
-        mats = [T.get_matrix() for T in frames.values()]  # root first, the end link last
-        origins = torch.stack([M[:, :3, 3].expand(len(qb), 3) for M in mats], dim=1)
-        return origins, mats[-1].expand(len(qb), 4, 4)
+        T_world_frame = self.frame_poses(q)  # (B, L, 4, 4)
+        return T_world_frame[:, :, :3, 3], T_world_frame[:, -1]
 
     def jacobian(self, q, with_pose: bool = False) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """Geometric Jacobian of the end link in the world frame: ``(B, d) -> (B, 6, d)``
