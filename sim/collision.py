@@ -36,14 +36,17 @@ configurations (``benchmarks/collision.py``):
   pairs), the table and copies of the obstacles; one ``performCollisionDetection`` per
   configuration for self collision (``getContactPoints``). The world's client is only read,
   never written: its joints, tool and particles are untouched by construction. The rest of the
-  robot (right arm, head, fingers) is copied once, at setup.
+  robot (right arm, head, fingers) is copied once, at setup. A batch of ``MIN_BATCH`` or more
+  configurations (``hit_fn``, the planner's checks) takes the moving links' boxes from one
+  forward pass (``sim.link_boxes``) instead of 16 ``getAABB`` calls per configuration.
 * ``"inplace"``: in the world's own client, an AABB prefilter per link pair, then
   ``getClosestPoints(distance=0)`` on the overlapping pairs; a context manager restores the
   arm's joint positions and velocities after every call.
 
 Both measure the scene the same way (``_too_close``): exact distances (``getClosestPoints``)
 of the moving links to the table and obstacles whose bounding boxes come within
-``OBSTACLE_MARGIN``; a configuration closer than that is in collision. Self collision is a
+``OBSTACLE_MARGIN`` (the batched boxes contain PyBullet's: a few more pairs measured, the same
+answers); a configuration closer than that is in collision. Self collision is a
 touch (distance < 0).
 
 "Adjacent" pairs are excluded: links whose path in the kinematic tree crosses at most one arm
