@@ -10,7 +10,7 @@ import numpy as np
 
 from sim.bullet import p
 
-__all__ = ["ALWAYS_TOUCHING", "LINK_RADIUS", "joint_levers", "self_pairs", "sweep_margin"]
+__all__ = ["ALWAYS_TOUCHING", "LINK_RADIUS", "joint_levers", "link_tree", "self_pairs", "sweep_margin"]
 
 # Pairs of (link, link) names not checked: Baxter's collision shapes overlap there at (nearly)
 # all configurations (share of 300 uniform random configurations in contact, measured).
@@ -27,8 +27,8 @@ ALWAYS_TOUCHING = frozenset(frozenset(pair) for pair in (
     # elbow a person uses to hold a tool level close to the body.
     ("left_upper_forearm", "left_upper_elbow_visual"),
 ))
-def _tree(client, robot):
-    """Parent link of each link index, link names."""
+def link_tree(client, robot):
+    """``(parent, names)``: the parent link of each link index, and each link's name (-1: ``"base"``)."""
     parent, names = {}, {-1: "base"}
     for j in range(p.getNumJoints(robot, physicsClientId=client)):
         info = p.getJointInfo(robot, j, physicsClientId=client)
@@ -52,7 +52,7 @@ def _arm_joints_between(a, b, parent, arm_joints):
 
 def self_pairs(client, robot, joints):
     """Moving links with shapes, robot links with shapes, and the (moving, other) pairs to check."""
-    parent, names = _tree(client, robot)
+    parent, names = link_tree(client, robot)
     has_shape = [k for k in parent if p.getCollisionShapeData(robot, k, physicsClientId=client)]
 
     def moves(k):

@@ -23,7 +23,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from sim.arm_geometry import link_tree
 from sim.bullet import p
+from sim.world import pose_to_matrix
 
 __all__ = ["LinkBoxes"]
 
@@ -32,22 +34,14 @@ __all__ = ["LinkBoxes"]
 MIN_BATCH = 32
 
 
-def _pose(pos, quat) -> np.ndarray:
-    """``(4, 4)`` from PyBullet's position and quaternion (x, y, z, w)."""
-    T = np.eye(4)
-    T[:3, :3] = np.asarray(p.getMatrixFromQuaternion(quat)).reshape(3, 3)
-    T[:3, 3] = pos
-    return T
-
-
 def _link_frame(client: int, body: int, link: int) -> np.ndarray:
     """``T_world_link (4, 4)``: the URDF frame of ``link`` (-1: the base) in ``client``'s world."""
     if link >= 0:
         state = p.getLinkState(body, link, computeForwardKinematics=True, physicsClientId=client)
-        return _pose(state[4], state[5])
-    T_world_com = _pose(*p.getBasePositionAndOrientation(body, physicsClientId=client))
+        return pose_to_matrix(state[4], state[5])
+    T_world_com = pose_to_matrix(*p.getBasePositionAndOrientation(body, physicsClientId=client))
     info = p.getDynamicsInfo(body, -1, physicsClientId=client)
-    return T_world_com @ np.linalg.inv(_pose(info[3], info[4]))
+    return T_world_com @ np.linalg.inv(pose_to_matrix(info[3], info[4]))
 
 
 def _corners(box: np.ndarray) -> np.ndarray:
@@ -73,11 +67,9 @@ class LinkBoxes:
 
     def __init__(self, client: int, robot: int, joints, links, kin, samples: int = 64, seed: int = 0):
         self.kin = kin
-        names = {j: p.getJointInfo(robot, j, physicsClientId=client)[12].decode()
-                 for j in range(p.getNumJoints(robot, physicsClientId=client))}
-        parent = {j: p.getJointInfo(robot, j, physicsClientId=client)[16] for j in names}
+        parent, names = link_tree(client, robot)
         frames = {n: i for i, n in enumerate(kin.frame_names)}
-        names[-1] = kin.frame_names[0]
+        names[-1] = kin.frame_names[0]  # the base is the chain's root
 
         def chain_frame(link: int) -> int:
             while names[link] not in frames:
