@@ -20,11 +20,14 @@ $(STAMP): setup.py constraints.txt lfd/__init__.py
 demo: $(STAMP)
 	$(PY) -m sim.demo_job
 
+# on every core (pytest-xdist), a test module per worker so that its fixtures are built once
+XDIST := -n auto --dist loadfile
+
 test: lint
-	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
+	$(PY) -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS)
 
 test-all: lint
-	$(PY) -m pytest -q $(PYTEST_ARGS)
+	$(PY) -m pytest -q $(XDIST) $(PYTEST_ARGS)
 
 # ruff on both packages, the scripts and the benchmarks, mypy on the library (ruff.toml, mypy.ini)
 lint: $(STAMP)

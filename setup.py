@@ -51,8 +51,10 @@ setup(
     extras_require={
         # The simulator, TensorBoard, plots and videos: what `make` installs.
         "sim": ["pybullet>=3.2.5", "tensorboard>=2.12", "matplotlib>=3.6", "imageio>=2.30", "tqdm>=4.60"],
-        # ruff and mypy run in `make test` (their versions pinned in constraints.txt: their rules change)
-        "test": ["pytest>=7", "hypothesis>=6", "psutil>=5", "ruff>=0.6", "mypy>=1.10"],
+        # ruff and mypy run in `make test` (their versions pinned in constraints.txt: their rules change);
+        # pytest-xdist runs the suite on every core, filelock lets its workers share one fixture
+        "test": ["pytest>=7", "pytest-xdist>=3", "filelock>=3", "hypothesis>=6", "psutil>=5", "ruff>=0.6",
+                 "mypy>=1.10"],
         # evaluation sweeps as Ray tasks (lfd-plan --evaluate --executor ray)
         "ray": ["ray>=2.9"],
     },

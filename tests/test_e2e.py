@@ -47,15 +47,16 @@ def free_run(model_dir):
     return run_one("powder", _scenario(BOWL), LEARNED, str(model_dir), ROADMAP, with_path=True)
 
 
-def test_pipeline_plans_and_replans(model_dir, free_run):
-    """Fast: the whole pipeline runs and the closed loop reacts to a moved bowl."""
-    assert free_run["plan_statuses"][0] == "ok", free_run["reason"]
-    assert len(free_run["task_point_path"]) > 10
-    # the tool's attitude is recorded: the spoon was turned over to dump, and tracked as commanded
-    assert free_run["executed_tilt_deg"] > 60, free_run["executed_tilt_deg"]
-    assert abs(free_run["planned_tilt_deg"] - free_run["executed_tilt_deg"]) < 5
+def test_pipeline_plans_and_replans(model_dir):
+    """Fast: the whole pipeline runs and the closed loop reacts to a moved bowl (one run; the slow
+    tests below judge a run without a move by the paper's criterion)."""
     after = (BOWL[0] - 0.25, BOWL[1] + 0.2)
-    r = run_one("powder", _scenario(BOWL, bowl_after=after), LEARNED, str(model_dir), ROADMAP)
+    r = run_one("powder", _scenario(BOWL, bowl_after=after), LEARNED, str(model_dir), ROADMAP, with_path=True)
+    assert r["plan_statuses"][0] == "ok", r["reason"]
+    assert len(r["task_point_path"]) > 10
+    # the tool's attitude is recorded: the spoon was turned over to dump, and tracked as commanded
+    assert r["executed_tilt_deg"] > 60, r["executed_tilt_deg"]
+    assert abs(r["planned_tilt_deg"] - r["executed_tilt_deg"]) < 5
     assert r["n_replans"] >= 1 and len(r["replan_ms"]) == r["n_replans"]
     assert all(s == "ok" for s in r["plan_statuses"]), r["plan_statuses"]
     # the reaction time is timed too: the landmark update before every re-plan, and the build
