@@ -3,6 +3,7 @@ learned kinematics against PyBullet's, and from recorded demonstrations."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -57,3 +58,18 @@ def test_demo_tilt_reads_the_demonstrators_roll(powder_demos, tmp_path):
     assert np.abs(np.asarray(t["per_demo"]) - drawn).max() <= TILT_TOLERANCE_DEG, (t, drawn)
     assert np.ptp(drawn) > 2 * TILT_TOLERANCE_DEG  # the rolls differ: matching each one means something
     assert math.isnan(demo_tilt(tmp_path / "none")["mean"])
+
+
+def test_the_demonstrators_roll_option_reaches_the_recorded_joints(tmp_path, monkeypatch):
+    """``generate(roll_deg=100)`` (``python -m sim.demos --roll 100``) drives the drawn paths, the
+    IK and the saved joints: the recorded demonstration tilts 100 deg within the demonstrator's
+    spread (the particle replay is skipped here: it judges the pour, not the roll)."""
+    import sim.demos as D
+    from sim.demo_paths import ROLL_SPREAD
+
+    monkeypatch.setattr(D, "replay", lambda world, q, dt: (1.0, []))
+    D.generate("powder", tmp_path, n=1, seed=4, progress=False, roll_deg=100.0)
+    t = demo_tilt(tmp_path)
+    assert len(t["per_demo"]) == 1
+    assert abs(t["per_demo"][0] - 100.0) <= ROLL_SPREAD["powder"] + TILT_TOLERANCE_DEG, t
+    assert json.loads((tmp_path / "ground_truth.json").read_text())["roll_deg"] == 100.0
