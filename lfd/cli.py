@@ -84,6 +84,14 @@ class ArgumentParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+def path_arg(text: str) -> Path:
+    """An ``argparse`` type for a file or folder option: ``Path(text)``, refusing an empty one
+    (``Path("")`` is the current folder: ``--out ""`` wrote a model into it)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path; give a file or folder name")
+    return Path(text)
+
+
 def writable_dir(path: str | Path, what: str = "--out") -> Path:
     """Create ``path`` if needed and check it can be written; ``UsageError`` otherwise."""
     path = Path(path)

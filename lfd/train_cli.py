@@ -42,6 +42,7 @@ from lfd.cli import (
     check_device_available,
     check_seed,
     check_task_name,
+    path_arg,
     run_main,
     writable_dir,
 )
@@ -89,10 +90,10 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                    help="the task to learn, as the demonstrations' task.json names it (required); the built-in "
                         f"tasks ({', '.join(BUILT_IN_TASKS)}) can have their demonstrations generated, any "
                         "other needs --demos")
-    p.add_argument("--demos", type=Path, metavar="DIR",
+    p.add_argument("--demos", type=path_arg, metavar="DIR",
                    help="demonstration folder (default: ./runs/demos/<task>, generated with the simulator "
                         "when empty; only for the built-in tasks)")
-    p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default: ./runs/<task>)")
+    p.add_argument("--out", type=path_arg, metavar="DIR", help="output folder (default: ./runs/<task>)")
     p.add_argument("--tool", default="learned", choices=tuple(TOOL_CHOICES), metavar="{learned,manual,arbitrary}",
                    help="tool landmark: learned from the demonstrations, manual (the task's hand-picked tool "
                         "point, e.g. the spoon's tip) or arbitrary (the gripper's origin); learn, tip, gripper "

@@ -17,7 +17,7 @@ import sys
 import time
 from pathlib import Path
 
-from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
+from lfd.cli import ArgumentParser, UsageError, path_arg, run_main, writable_dir
 from sim import require_pybullet
 from sim.scenarios import MAX_BASE_SEED, MAX_SCENARIO_SEED, check_set_size
 from sim.sweep import EXECUTORS
@@ -56,7 +56,7 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     from sim.evaluate import VARIANTS
     ap = ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0] + " Relative paths and the default "
                         "output folders are taken from the current working directory.")
-    ap.add_argument("--model", type=Path, metavar="DIR",
+    ap.add_argument("--model", type=path_arg, metavar="DIR",
                     help="model folder written by train.py, the one holding model.pt and config.json "
                          "(single-plan mode; default: none, give it or --evaluate)")
     ap.add_argument("--scenario-seed", type=int, default=0, metavar="S", help="which scenario to plan in")
@@ -92,17 +92,17 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     ap.add_argument("--variants", nargs="+", default=None, metavar="TOOL+ENV",
                     help=f"subset of variants to run, tool and environment landmark as in train.py's --tool "
                          f"and --env (default: all of {', '.join(v.name for v in VARIANTS)})")
-    ap.add_argument("--models", type=Path, default=None, metavar="DIR",
+    ap.add_argument("--models", type=path_arg, default=None, metavar="DIR",
                     help="folder of trained variants, missing ones are trained into it "
                          "(default: ./runs/<task>/models)")
-    ap.add_argument("--demos", type=Path, default=None, metavar="DIR",
+    ap.add_argument("--demos", type=path_arg, default=None, metavar="DIR",
                     help="demonstrations to train missing variants on (default: ./runs/demos/<task>, "
                          "generated when empty)")
     ap.add_argument("--move-bowl", action="store_true",
                     help="with --evaluate: move the bowl mid-task in every scenario, at a quarter of the task "
                          "(the pour's scenes keep it still otherwise; the powder's always move it)")
     ap.add_argument("--video", action="store_true", help="write a GIF of the first scenario of each variant")
-    ap.add_argument("--out", type=Path, default=None, metavar="DIR",
+    ap.add_argument("--out", type=path_arg, default=None, metavar="DIR",
                     help="output folder (default: <model>/plans, or ./runs/<task>/eval with --evaluate)")
     return ap
 

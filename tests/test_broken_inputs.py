@@ -139,6 +139,36 @@ def test_damaged_member_is_not_blamed_on_pickle(good_dir, kin):
     assert "pickle" not in str(info.value)
 
 
+def test_damaged_compressed_member_is_one_line(good_dir, kin):
+    """A compressed archive whose deflate data is damaged was a zlib.error traceback."""
+    target = good_dir / "demo_001.npz"
+    with np.load(target) as z:
+        arrays = {k: z[k] for k in z.files}
+    np.savez_compressed(target, **arrays)
+    with zipfile.ZipFile(target) as z:
+        info = z.getinfo("q.npy")
+    raw = bytearray(target.read_bytes())
+    start = info.header_offset + 30 + len(info.filename.encode()) + len(info.extra)  # the member's data
+    for k in range(start + 60, start + 65):
+        raw[k] ^= 0x5A
+    target.write_bytes(bytes(raw))
+    with pytest.raises(DemoFormatError, match=r"demo_001.npz: damaged .npz file"):
+        load_demos(good_dir, kin=kin)
+
+
+def test_member_whose_header_claims_a_huge_array_is_one_line(good_dir, kin):
+    """A ``q.npy`` header claiming (1e11, 7) made numpy ask for 5 TiB: a MemoryError traceback."""
+    import io
+
+    target = good_dir / "demo_001.npz"
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buf, {"descr": "<f8", "fortran_order": False, "shape": (10 ** 11, 7)})
+    _zip_with_member(good_dir / "tmp.zip", target, "q.npy", buf.getvalue() + bytes(64))  # magic, header, no data
+    os.replace(good_dir / "tmp.zip", target)
+    with pytest.raises(DemoFormatError, match=r"demo_001.npz: damaged .npz file"):
+        load_demos(good_dir, kin=kin)
+
+
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
 def test_fifo_named_npz_is_refused_without_blocking(good_dir):
     os.mkfifo(good_dir / "zz.npz")  # opening it would wait for a writer forever
@@ -241,7 +271,10 @@ BROKEN_MODELS = [
      "no sequence of time steps"),  # loaded, then every plan was 'no_path'
     ("truncated", lambda d: (d / "model.pt").write_bytes((d / "model.pt").read_bytes()[:300]), "damaged or truncated"),
     ("pickled-module", lambda d: torch.save(torch.nn.Linear(2, 2), d / "model.pt"),
-     "cannot be read as a tensor state dict (Weights only load failed"),  # not 'damaged or truncated?'
+     "cannot be read as a tensor state dict: it holds Python objects, not only tensors (Unsupported global"),
+    # torch's own text told the user that loading with weights_only=False 'will likely succeed'
+    ("random-bytes", lambda d: (d / "model.pt").write_bytes(bytes(range(256)) * 16),
+     "cannot be read as a tensor state dict: damaged, or not a file torch.save wrote (Unsupported operand"),
     ("env-not-one", lambda d: _break_tensor(d, "env", torch.full((1,), 0.5, dtype=torch.float64)), "sum to 1"),
     ("offsets-negative", lambda d: _break_config(d, offsets=[0, -1, 2]), "offsets must be distinct"),
     ("offsets-fraction", lambda d: _break_config(d, offsets=[0, 1.5, 2]), "offsets must be whole numbers"),

@@ -110,6 +110,8 @@ def test_task_point_changes_the_followed_point(tmp_path, kin):
     (["--task", "pour", "--roll", "nan", "--out", "X"], "--roll"),
     (["--task", "powder", "--seed", "-1", "--out", "X"], "--seed must be in [0, 2**63)"),  # a numpy traceback
     (["--task", "powder", "--out", "HELD"], "already holds demonstrations"),  # mixed two sets and a ground truth
+    (["--task", "powder", "--plot", "paths.txt", "--out", "X"], "--plot must name a .png file"),  # after the drawing
+    (["--task", "powder", "--out", ""], "--out: an empty path"),  # wrote the set into the current folder
 ])
 def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys, args, msg):
     (tmp_path / "held").mkdir()

@@ -228,13 +228,20 @@ def test_command_line_refusals(tmp_path, capsys):
     assert r.returncode == 0, r.stderr  # a relative URDF path is stored absolute: training elsewhere finds it
     assert Path(load_demos(tmp_path / "o_rel").robot.urdf) == Path(spec["urdf"])
     assert "no recordings" in _import(capsys, tmp_path / "out", tmp_path / "o4").stderr
+    (tmp_path / "afile").write_text("x")  # --out under a file was a FileExistsError traceback
+    r = _import(capsys, DATA, tmp_path / "afile" / "sub")
+    assert r.returncode == 2 and "--out" in r.stderr and r.stderr.count("\n") == 1, r.stderr
     # bad numbers: one line each, not a traceback (NaN in the pose was a scipy error; 1e7 Hz filled the memory)
     for extra, fragment in ((("--frame-pose", "0", "0", "nan", "0", "0", "0", "1"), "--frame-pose needs 7 finite numbers"),
                             (("--frame-pose", "0", "0", "0", "0", "0", "0", "nan"), "--frame-pose needs 7 finite numbers"),
                             (("--rate", "1e7"), "--rate must be within [1, 1000] Hz"),
                             (("--rate", "0.5"), "--rate must be within [1, 1000] Hz"),
                             (("--max-gap", "0"), "--max-gap must be positive"),  # named 'max_gap' before
-                            (("--trim-pauses", "-1"), "--trim-pauses at least 0")):
+                            (("--trim-pauses", "-1"), "--trim-pauses at least 0"),
+                            # a tolerance as large as the motion left nothing (0.5: an IndexError) or
+                            # everything (100: imported untrimmed without a word)
+                            (("--trim-pauses", "0.5"), "no motion is left once the pauses are trimmed"),
+                            (("--trim-pauses", "100"), "no motion is left once the pauses are trimmed")):
         r = _import(capsys, DATA, tmp_path / "o5", *extra)
         assert r.returncode == 2 and fragment in r.stderr and r.stderr.count("\n") == 1, (extra, r.stderr)
     (tmp_path / "cols.json").write_text(json.dumps({"degrees": "false"}))  # was read as degrees=True

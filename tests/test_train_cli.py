@@ -203,6 +203,8 @@ CASES = [
                                      str(d / "out"), *RUN], "no such demonstration folder"),
     # arguments of train.py
     ("own-task-without-demos", lambda d, g: ["train.py", "--task", "stir"], "--task stir: give --demos DIR"),
+    ("out-empty", lambda d, g: ["train.py", "--task", "powder", "--demos", str(g), "--out", ""],
+     "argument --out: an empty path"),  # the model, checkpoints and logs went into the current folder
     ("bad-tool", _train("--tool", "spoon"), "argument --tool: invalid choice: 'spoon'"),
     ("bad-covariance", _train("--covariance", "diag"), "argument --covariance: invalid choice: 'diag'"),
     ("restarts-0", _train("--restarts", "0"), "--restarts must be at least 1, got 0"),
@@ -300,7 +302,9 @@ def test_bad_input_one_line_exit_2(good, tmp_path, monkeypatch, capsys, cid, set
     assert FRAGMENT_EXTRA.get(cid, "") in lines[0]
     if cid in NO_OUTPUT:
         assert not (tmp_path / NO_OUTPUT[cid]).exists()
-    if command == "train.py" and "--out" in argv and cid not in ("out-is-file", "out-under-a-file"):
+    if cid == "out-empty":  # the current folder
+        assert not any(tmp_path.iterdir()), sorted(tmp_path.iterdir())
+    elif command == "train.py" and "--out" in argv and cid not in ("out-is-file", "out-under-a-file"):
         out = Path(argv[argv.index("--out") + 1])  # a failed run leaves no folder it created
         assert not out.exists() or cid == "resume-damaged-checkpoint", sorted(out.iterdir())
 

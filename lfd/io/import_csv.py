@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lfd.cli import ArgumentParser, UsageError, check_task_name, run_main
+from lfd.cli import ArgumentParser, UsageError, check_task_name, path_arg, run_main, writable_dir
 from lfd.learning.tasks import MAX_DT
 
 __all__ = ["PROG", "build_parser", "cli", "main"]
@@ -33,9 +33,9 @@ MAX_RATE = 1000.0  # Hz: resampled faster, a recording is only interpolated (and
 def build_parser(prog: str = PROG) -> ArgumentParser:
     p = ArgumentParser(prog=prog, description="Turn recorded demonstrations (joint and landmark CSVs, one folder "
                                               "or file pair per demonstration) into an lfd demonstration set.")
-    p.add_argument("recordings", type=Path, metavar="RECORDINGS",
+    p.add_argument("recordings", type=path_arg, metavar="RECORDINGS",
                    help="folder of DEMO/joints.csv + DEMO/landmarks.csv, or DEMO_joints.csv + DEMO_landmarks.csv")
-    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="the demonstration set to write (new folder)")
+    p.add_argument("--out", type=path_arg, required=True, metavar="DIR", help="the demonstration set to write (new folder)")
     p.add_argument("--task", required=True, metavar="NAME", help="the task's name, written to task.json")
     p.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="samples per second after resampling")
     p.add_argument("--time-steps", type=int, default=24, metavar="T", help="the task model's time steps (task.json)")
@@ -45,9 +45,9 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     robot = p.add_mutually_exclusive_group()
     robot.add_argument("--robot", default="baxter_left", metavar="NAME",
                        help="a built-in robot (lfd.robot.robots): baxter_left or panda")
-    robot.add_argument("--robot-json", type=Path, default=None, metavar="FILE",
+    robot.add_argument("--robot-json", type=path_arg, default=None, metavar="FILE",
                        help="your robot: a JSON RobotSpec (name, urdf, end_link, joint_names)")
-    p.add_argument("--columns", type=Path, default=None, metavar="MAPPING.json",
+    p.add_argument("--columns", type=path_arg, default=None, metavar="MAPPING.json",
                    help='joint CSV columns other than time + URDF joint names: {"time": "t", "joints": '
                         '{"left_s0": "j0", ...}, "degrees": false} (default: none)')
     p.add_argument("--frame-pose", type=float, nargs=7, default=None, metavar=("X", "Y", "Z", "QX", "QY", "QZ", "QW"),
@@ -122,7 +122,7 @@ def main(argv=None, prog: str = PROG) -> int:
     except ValueError as e:
         raise UsageError(f"--task: {e}") from e
     ds = replace(ds, task=task)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
+    writable_dir(args.out.parent)
     tmp = Path(tempfile.mkdtemp(prefix=f".{args.out.name}-", dir=args.out.parent))
     umask = os.umask(0)
     os.umask(umask)

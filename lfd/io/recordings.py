@@ -283,16 +283,18 @@ def _limits(robot: RobotSpec) -> tuple[np.ndarray, np.ndarray]:
     return kin.lower.cpu().numpy(), kin.upper.cpu().numpy()
 
 
-def _trim(q: np.ndarray, tolerance: float) -> slice:
+def _trim(q: np.ndarray, tolerance: float) -> slice | None:
     """The samples from the last one at which every joint is still within ``tolerance`` (rad) of
     where it started to the first at which every joint is within it of where it ends: the
     pauses before and after the motion are left out (a tolerance, not a speed, so that sensor
-    noise does not count as motion)."""
+    noise does not count as motion). None when no motion is left between them: the tolerance
+    is as large as the motion itself."""
     start = np.flatnonzero(np.abs(q - q[0]).max(axis=1) > tolerance)
     end = np.flatnonzero(np.abs(q - q[-1]).max(axis=1) > tolerance)
     if not len(start) or not len(end):
-        return slice(0, len(q))
-    return slice(max(0, int(start[0]) - 1), int(end[-1]) + 2)
+        return None
+    first, last = max(0, int(start[0]) - 1), int(end[-1]) + 1
+    return slice(first, last + 1) if last > first else None
 
 
 def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: TaskSpec | None = None,
@@ -327,6 +329,11 @@ def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: Tas
             raise RecordingError(f"{lpath}: landmarks {sorted(tracks)} differ from the first recording's "
                                  f"{sorted(names)}")
         keep = _trim(q_raw, trim) if trim else slice(0, len(t_raw))
+        if keep is None:
+            span = float(np.abs(q_raw - q_raw[0]).max())
+            raise RecordingError(f"{jpath}: no motion is left once the pauses are trimmed with a tolerance of "
+                                 f"{trim:g} rad (no joint moves more than {span:.3g} rad from where it "
+                                 "starts): lower --trim-pauses")
         t0, t1 = t_raw[keep][0], t_raw[keep][-1]
         t = t0 + np.arange(int(math.floor((t1 - t0) * rate + 1e-9)) + 1) / rate  # (S,)
         q = np.stack([np.interp(t, t_raw, q_raw[:, j]) for j in range(q_raw.shape[1])], axis=1)

@@ -26,6 +26,8 @@ import hashlib
 import io
 import json
 import os
+import pickle
+import re
 import signal
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -95,6 +97,17 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
     except OSError:
         pass
     return path
+
+
+def refused_load_cause(e: Exception) -> str:
+    """What ``torch.load(weights_only=True)`` refused (its ``UnpicklingError`` ``e``), without
+    torch's advice to load with ``weights_only=False`` (which would run the file's code, and
+    would not mend a damaged file)."""
+    m = re.search(r"WeightsUnpickler error:\s*(.*?)\s*(?:Check the documentation|\Z)", str(e), re.DOTALL)
+    cause = " ".join(m.group(1).split()).split(". ")[0] if m else str(e).strip().splitlines()[0]
+    if cause.startswith("Unsupported global"):
+        return f"it holds Python objects, not only tensors ({cause})"
+    return f"damaged, or not a file torch.save wrote ({cause})"
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:
@@ -253,6 +266,8 @@ def load_checkpoint(folder: str | Path) -> FitProgress:
         raise CheckpointError(f"{pt_path}: damaged (sha256 differs from {RECORD}'s)")
     try:
         state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:
+        raise CheckpointError(f"{pt_path}: cannot be read as tensors: {refused_load_cause(e)}") from e
     except Exception as e:  # torch raises several kinds for foreign files
         raise CheckpointError(f"{pt_path}: cannot be read as tensors ({e})") from e
     if not isinstance(state, dict) or (state and set(state) != set(STATE_TENSORS)) \

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import json
 import zipfile
+import zlib
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -182,6 +183,10 @@ def _read_npz(path: Path) -> dict:
         if "pickle" in str(e):  # object arrays need pickle, which is refused
             raise _fail(where, f"cannot read without pickle ({e}); store names as plain string arrays") from e
         raise _fail(where, f"damaged .npz file: a member is not a readable array ({e})") from e
+    except zlib.error as e:
+        raise _fail(where, f"damaged .npz file: a compressed member does not decompress ({e})") from e
+    except MemoryError as e:  # numpy allocates what a member's header claims before reading it
+        raise _fail(where, f"damaged .npz file: a member's header claims an array too large to hold ({e})") from e
     except (OSError, zipfile.BadZipFile, EOFError, KeyError, RuntimeError, NotImplementedError) as e:
         # RuntimeError: an encrypted member; NotImplementedError: a compression zipfile lacks
         raise _fail(where, f"not a readable .npz file ({type(e).__name__}: {e})") from e

@@ -399,12 +399,12 @@ class TaskModel:
         for p in (cfg_path, pt_path):
             if not p.is_file():
                 raise ModelFormatError(f"{model_dir}: not an lfd task model (missing {p.name})")
-        from lfd.learning.checkpoint import read_json_record
+        from lfd.learning.checkpoint import read_json_record, refused_load_cause
         cfg = read_json_record(cfg_path, FORMAT, ModelFormatError, "task model config")
         try:
             state = torch.load(pt_path, map_location="cpu", weights_only=True)
         except pickle.UnpicklingError as e:  # weights_only refuses a pickled object that is not tensors
-            raise ModelFormatError(f"{pt_path}: cannot be read as a tensor state dict ({e})") from e
+            raise ModelFormatError(f"{pt_path}: cannot be read as a tensor state dict: {refused_load_cause(e)}") from e
         except Exception as e:  # torch raises several kinds for damaged files (a bad zip, a short read)
             raise ModelFormatError(f"{pt_path}: cannot be read as a tensor state dict: damaged or truncated? ({e})") from e
         if not isinstance(state, dict) or set(state) != set(cls._TENSORS):
