@@ -179,6 +179,12 @@ def _swap(rows, i):
     return rows
 
 
+def _glitch(rows):
+    """One reading of the tracked hand, half-way through, 4 m off (a tracker's glitch)."""
+    hand = [i for i, x in enumerate(rows) if x[1] == "hand"]
+    return _set(rows, hand[len(hand) // 2], 2, str(float(rows[hand[len(hand) // 2]][2]) + 4.0))
+
+
 BAD = [
     ("missing-column", lambda d: _corrupt_joints(d, lambda r: [x[:3] + x[4:] for x in r], header=True),
      "demo_02/joints.csv: missing column(s)"),
@@ -196,12 +202,15 @@ BAD = [
     ("track-short", lambda d: _corrupt_landmarks(d, lambda r: [x for x in r if x[1] != "hand" or float(x[0]) < 1003]),
      "demo_03/landmarks.csv: landmark 'hand' is read from"),
     ("no-landmarks", lambda d: (d / "demo_03" / "landmarks.csv").unlink(), "no landmark recording beside it"),
+    # resampled at 10 Hz, the 30 Hz glitch was averaged to 4.2 m/s, under the 5 m/s limit: imported
+    ("tracker-glitch", lambda d: _corrupt_landmarks(d, _glitch),
+     "demo_03/landmarks.csv: in its readings, landmark 'hand' moves 4 m between samples"),
     ("header-repeats", lambda d: _corrupt_joints(d, lambda r: [[("left_s0" if c == "left_gripper" else c) for c in r[0]]] + r[1:],
                                                header=True),
      "demo_02/joints.csv: the header repeats column(s)"),  # the first copy was read without a word
     ("millimetres", lambda d: _corrupt_landmarks(d, lambda r: [x[:2] + [str(float(v) * 1000) for v in x[2:5]] + x[5:]
                                                        for x in r]),
-     "m from the robot's base at sample 0, more than 20 m (millimetres given as metres"),  # was imported as metres
+     "m from the robot's base at sample 19, more than 20 m (millimetres given as metres"),  # was imported as metres
 ]
 
 

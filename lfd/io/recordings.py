@@ -238,6 +238,12 @@ def _landmark_tracks(path: Path, T_base_frame: np.ndarray, max_gap: float) -> di
         T[:, :3, :3] = Rotation.from_quat(a[sel, 4:8] / norm[sel, None]).as_matrix()
         T[:, :3, 3] = a[sel, 1:4]
         tracks[name] = (t, T_base_frame @ T)
+        # at the readings' own times: resampled, a one-reading glitch is averaged under the limit
+        # (a landmark in the wrong unit is named first: it also "jumps")
+        raw = tracks[name][1][:, None]  # (K, 1, 4, 4)
+        why = far_landmark(raw, [name]) or (jumping_landmark(raw, [name], np.diff(t)) if len(t) > 1 else None)
+        if why:
+            raise RecordingError(f"{path}: in its readings, {why}")
     return tracks
 
 

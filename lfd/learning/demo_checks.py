@@ -29,17 +29,19 @@ def far_landmark(poses: np.ndarray, names: Sequence[str]) -> str | None:
             f"{MAX_LANDMARK_DISTANCE:g} m (millimetres given as metres, or another frame than the base's?)")
 
 
-def jumping_landmark(poses: np.ndarray, names: Sequence[str], dt: float) -> str | None:
-    """Why tracked landmark poses ``(S, Z, 4, 4)``, sampled every ``dt`` s, cannot be one object's
-    motion (a landmark faster than ``MAX_LANDMARK_SPEED`` between two samples), or ``None``;
-    ``None`` for landmarks held still ``(Z, 4, 4)``."""
+def jumping_landmark(poses: np.ndarray, names: Sequence[str], dt) -> str | None:
+    """Why tracked landmark poses ``(S, Z, 4, 4)``, sampled every ``dt`` s (a number, or the
+    ``(S - 1,)`` intervals of readings at their own times), cannot be one object's motion (a
+    landmark faster than ``MAX_LANDMARK_SPEED`` between two samples), or ``None``; ``None`` for
+    landmarks held still ``(Z, 4, 4)``."""
     if poses.ndim != 4 or poses.shape[0] < 2:
         return None
-    speed = np.linalg.norm(np.diff(poses[:, :, :3, 3], axis=0), axis=-1) / dt  # (S - 1, Z)
+    step = np.linalg.norm(np.diff(poses[:, :, :3, 3], axis=0), axis=-1)  # (S - 1, Z) m
+    speed = step / np.broadcast_to(np.reshape(np.asarray(dt, dtype=float), (-1, 1)), step.shape)
     if float(speed.max()) <= MAX_LANDMARK_SPEED:
         return None
     s, z = (int(i) for i in np.unravel_index(int(np.argmax(speed)), speed.shape))
-    return (f"landmark {names[z]!r} moves {float(speed[s, z]) * dt:.3g} m between samples {s} and {s + 1} "
+    return (f"landmark {names[z]!r} moves {float(step[s, z]):.3g} m between samples {s} and {s + 1} "
             f"({float(speed[s, z]):.3g} m/s, more than {MAX_LANDMARK_SPEED:g} m/s: a tracking glitch, or "
             f"another marker read as this landmark?)")
 
