@@ -202,6 +202,8 @@ BAD = [
     ("track-short", lambda d: _corrupt_landmarks(d, lambda r: [x for x in r if x[1] != "hand" or float(x[0]) < 1003]),
      "demo_03/landmarks.csv: landmark 'hand' is read from"),
     ("no-landmarks", lambda d: (d / "demo_03" / "landmarks.csv").unlink(), "no landmark recording beside it"),
+    ("one-row", lambda d: _corrupt_joints(d, lambda r: r[:1]),  # was "the arm never moved"
+     "demo_02/joints.csv: 1 reading(s) over 0 s, shorter than one sample interval at 10 Hz"),
     # resampled at 10 Hz, the 30 Hz glitch was averaged to 4.2 m/s, under the 5 m/s limit: imported
     ("tracker-glitch", lambda d: _corrupt_landmarks(d, _glitch),
      "demo_03/landmarks.csv: in its readings, landmark 'hand' moves 4 m between samples"),

@@ -342,6 +342,9 @@ def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: Tas
                                  "starts): lower --trim-pauses")
         t0, t1 = t_raw[keep][0], t_raw[keep][-1]
         t = t0 + np.arange(int(math.floor((t1 - t0) * rate + 1e-9)) + 1) / rate  # (S,)
+        if len(t) < 2:  # was reported as an arm that never moved
+            raise RecordingError(f"{jpath}: {len(t_raw)} reading(s) over {t1 - t0:.3g} s, shorter than one "
+                                 f"sample interval at {rate:g} Hz: record longer or raise --rate")
         q = np.stack([np.interp(t, t_raw, q_raw[:, j]) for j in range(q_raw.shape[1])], axis=1)
         poses = np.stack([_at_times(lpath, n, tracks[n], t, max_gap) for n in names], axis=1)  # (S, Z, 4, 4)
         why = far_landmark(poses, names) or jumping_landmark(poses, names, 1.0 / rate)
