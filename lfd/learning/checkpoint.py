@@ -99,6 +99,10 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
     return path
 
 
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    return atomic_write_bytes(path, text.encode("utf-8"))
+
+
 def refused_load_cause(e: Exception) -> str:
     """What ``torch.load(weights_only=True)`` refused (its ``UnpicklingError`` ``e``), without
     torch's advice to load with ``weights_only=False`` (which would run the file's code, and
@@ -108,10 +112,6 @@ def refused_load_cause(e: Exception) -> str:
     if cause.startswith("Unsupported global"):
         return f"it holds Python objects, not only tensors ({cause})"
     return f"damaged, or not a file torch.save wrote ({cause})"
-
-
-def atomic_write_text(path: str | Path, text: str) -> Path:
-    return atomic_write_bytes(path, text.encode("utf-8"))
 
 
 def atomic_torch_save(obj, path: str | Path) -> Path:

@@ -29,7 +29,7 @@ def far_landmark(poses: np.ndarray, names: Sequence[str]) -> str | None:
             f"{MAX_LANDMARK_DISTANCE:g} m (millimetres given as metres, or another frame than the base's?)")
 
 
-def jumping_landmark(poses: np.ndarray, names: Sequence[str], dt) -> str | None:
+def jumping_landmark(poses: np.ndarray, names: Sequence[str], dt: float | np.ndarray) -> str | None:
     """Why tracked landmark poses ``(S, Z, 4, 4)``, sampled every ``dt`` s (a number, or the
     ``(S - 1,)`` intervals of readings at their own times), cannot be one object's motion (a
     landmark faster than ``MAX_LANDMARK_SPEED`` between two samples), or ``None``; ``None`` for
