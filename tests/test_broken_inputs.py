@@ -284,6 +284,10 @@ BROKEN_MODELS = [
      "is more than 2 m from the gripper"),
     ("names-null", lambda d: _break_config(d, landmark_names=[None], all_landmark_names=[None]),
      "distinct non-empty strings"),
+    ("names-a-string", lambda d: _break_config(d, landmark_names="bowl", all_landmark_names="bowl"),
+     "landmark names must be a list of names, got the string 'bowl'"),  # listed ['b', 'o', 'w', 'l']
+    ("robot-joints-a-string", lambda d: _break_config(d, robot={**BAXTER_LEFT.to_dict(), "joint_names": "left_s0"}),
+     "joint_names must be a list of joint names, got the string 'left_s0'"),
     ("config-deep", lambda d: (d / "config.json").write_text("[" * 100_000 + "]" * 100_000), "not valid JSON"),
     ("task-inf", lambda d: _break_config(d, task={**POWDER.to_dict(), "time_steps": float("inf")}),
      "time_steps must be a whole number"),

@@ -194,6 +194,9 @@ class TaskModel:
                  kin=None, feature_set: str = "paper"):
         self.tool, self.env, self.mu = tool, env, mu
         self.sigma_inv, self.log_trans = sigma_inv, log_trans
+        for names in (landmark_names, all_landmark_names):  # tuple("bowl") would be 4 one-letter names
+            if isinstance(names, (str, bytes)):
+                raise ValueError(f"landmark names must be a list of names, got the string {names!r}")  # noqa: TRY004 (a user's file)
         self.landmark_names = tuple(landmark_names)
         self.all_landmark_names = tuple(all_landmark_names or landmark_names)
         self.robot, self.task = robot, task

@@ -38,6 +38,9 @@ class RobotSpec:
 
     @classmethod
     def from_dict(cls, d: dict) -> RobotSpec:
+        if isinstance(d, dict) and isinstance(d.get("joint_names"), (str, bytes)):  # not split into letters
+            raise ValueError(f"robot description: joint_names must be a list of joint names, got the string "  # noqa: TRY004 (a user's file)
+                             f"{d['joint_names']!r}")
         try:
             return cls(name=str(d["name"]), urdf=str(d["urdf"]), end_link=str(d["end_link"]),
                        joint_names=tuple(str(j) for j in d["joint_names"]))
