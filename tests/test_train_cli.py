@@ -87,6 +87,13 @@ def _no_task_json(d, good):
             "--subsample", "2"]
 
 
+def _task_json_subsample(d, good):
+    shutil.copytree(good, d / "demos")
+    task = json.loads((d / "demos" / "task.json").read_text())
+    (d / "demos" / "task.json").write_text(json.dumps({**task, "subsample": 1000}))
+    return ["train.py", "--task", "powder", "--demos", str(d / "demos"), "--out", str(d / "out"), *RUN]
+
+
 def _train(*extra, out=None):
     """A setup: valid demonstrations, train.py with ``extra`` arguments."""
     def setup(d: Path, good: Path):
@@ -216,6 +223,8 @@ CASES = [
     ("band-negative", _train("--band", "-2"), "FitConfig.band must be a whole number >= 0, got -2"),
     ("subsample-0", _train("--subsample", "0"), "--subsample must be at least 1, got 0"),
     ("subsample-step", _train("--subsample", "101"), "--subsample 101: a time step of 10.1 s, more than a task's 10 s"),
+    ("subsample-step-task-json", _task_json_subsample,  # named --subsample, which was not given
+     "task.json: not a valid task definition: TaskSpec.subsample 1000: a time step of 100 s learned, more than 10"),
     ("subsample-no-task-json", _no_task_json, "has no task.json, where the model's sampling interval is kept"),
     ("subsample-word", _train("--subsample", "half"), "argument --subsample: invalid int value: 'half'"),
     ("floor-zero", _train("--floor-task", "0"),

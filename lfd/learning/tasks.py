@@ -102,6 +102,9 @@ class TaskSpec:
         object.__setattr__(self, "dt", float(self.dt))
         object.__setattr__(self, "time_steps", check_whole(self.time_steps, "TaskSpec.time_steps", 2))
         object.__setattr__(self, "subsample", check_stride(self.subsample, "TaskSpec.subsample"))
+        if self.dt * self.subsample > MAX_STEP:  # a set that train.py could only refuse
+            raise ValueError(f"TaskSpec.subsample {self.subsample}: a time step of {self.dt * self.subsample:g} s "
+                             f"learned, more than {MAX_STEP:g}; keep more of the samples")
         if self.restarts is not None:
             object.__setattr__(self, "restarts", check_whole(self.restarts, "TaskSpec.restarts", 1))
         object.__setattr__(self, "manual_tool_point",
