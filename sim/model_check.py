@@ -52,6 +52,8 @@ def load_checked_model(model_dir: str | Path, task: str | None = None,
     ``"{what} {model_dir}: "``.
     """
     model_dir = Path(model_dir)
+    if not model_dir.exists():  # named as such, not by the config.json it lacks
+        raise UsageError(f"{what} {model_dir}: no such folder")
     if not (model_dir / "config.json").is_file():
         raise UsageError(f"{what} {model_dir}: no config.json (train one with train.py)")
     model = TaskModel.load(model_dir)

@@ -284,6 +284,8 @@ BROKEN_MODELS = [
      "is more than 2 m from the gripper"),
     ("names-null", lambda d: _break_config(d, landmark_names=[None], all_landmark_names=[None]),
      "distinct non-empty strings"),
+    ("options-a-string", lambda d: _break_config(d, options="x"),  # was "dictionary update sequence element #0"
+     "TaskModel.options must be a JSON object of how it was learned, got str 'x'"),
     ("names-a-string", lambda d: _break_config(d, landmark_names="bowl", all_landmark_names="bowl"),
      "landmark names must be a list of names, got the string 'bowl'"),  # listed ['b', 'o', 'w', 'l']
     ("robot-joints-a-string", lambda d: _break_config(d, robot={**BAXTER_LEFT.to_dict(), "joint_names": "left_s0"}),

@@ -240,6 +240,7 @@ def test_command_line_refusals(tmp_path, capsys):
     assert Path(load_demos(tmp_path / "o_rel").robot.urdf) == Path(spec["urdf"])
     assert "no recordings" in _import(capsys, tmp_path / "out", tmp_path / "o4").stderr
     (tmp_path / "afile").write_text("x")  # --out under a file was a FileExistsError traceback
+    assert "afile: a file, not a folder of recordings" in _import(capsys, tmp_path / "afile", tmp_path / "o8").stderr
     r = _import(capsys, DATA, tmp_path / "afile" / "sub")
     assert r.returncode == 2 and "--out" in r.stderr and r.stderr.count("\n") == 1, r.stderr
     # bad numbers: one line each, not a traceback (NaN in the pose was a scipy error; 1e7 Hz filled the memory)

@@ -240,7 +240,8 @@ CASES = [
     ("resume-no-checkpoint", _train("--resume"), "--resume: ", ),
     ("resume-damaged-checkpoint", _damaged_checkpoint, "damaged (sha256 differs"),
     # plan.py
-    ("plan-model-missing", _plan(model=lambda d: d / "absent"), "no config.json (train one with train.py)"),
+    ("plan-model-missing", _plan(model=lambda d: d / "absent"), "absent: no such folder"),  # said "no config.json"
+    ("plan-model-empty-folder", _plan(model=lambda d: d), "no config.json (train one with train.py)"),
     ("plan-model-incomplete", _plan(model=_incomplete_model), "not an lfd task model (missing model.pt)"),
     ("plan-evaluate-no-task", _plan("--evaluate"), "--evaluate needs --task"),
     ("plan-roadmap-size", _plan("--roadmap-size", "5", model=lambda d: d), "--roadmap-size must be in [10, 100000], got 5"),

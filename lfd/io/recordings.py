@@ -113,7 +113,8 @@ def find_recordings(root: str | Path) -> list[tuple[str, Path, Path | None]]:
     """
     root = Path(root)
     if not root.is_dir():
-        raise RecordingError(f"{root}: no such folder of recordings")
+        raise RecordingError(f"{root}: " + ("a file, not a folder of recordings" if root.exists()
+                                            else "no such folder of recordings"))
 
     def visible(folder: Path) -> dict[str, Path]:  # lower-case name -> entry
         out: dict[str, Path] = {}
