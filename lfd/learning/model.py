@@ -211,7 +211,7 @@ class TaskModel:
             raise ValueError(f"feature_set must be one of {FEATURE_SETS}, got {feature_set!r}")
         self.feature_set = feature_set
         self.logdet_scale = float(logdet_scale)
-        if options is not None and not isinstance(options, dict):  # dict("x") is Python's own riddle
+        if options is not None and not isinstance(options, dict):  # dict("x") raised Python's 'dictionary update sequence' error
             raise ValueError(f"TaskModel.options must be a JSON object of how it was learned, got "
                              f"{type(options).__name__} {options!r}"[:200])
         self.options = dict(options or {})
