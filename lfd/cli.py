@@ -92,6 +92,17 @@ def path_arg(text: str) -> Path:
     return Path(text)
 
 
+def png_file(path: str | Path, what: str) -> Path:
+    """``Path(path)`` when it names a ``.png`` file in an existing folder (checked before the
+    work whose figure it will hold); ``UsageError`` otherwise."""
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        raise UsageError(f"{what} must name a .png file, got {str(path)!r}")
+    if not path.parent.is_dir():
+        raise UsageError(f"{what} {path}: folder {path.parent} does not exist")
+    return path
+
+
 def writable_dir(path: str | Path, what: str = "--out") -> Path:
     """Create ``path`` if needed and check it can be written; ``UsageError`` otherwise."""
     path = Path(path)

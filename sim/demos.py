@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lfd.cli import ArgumentParser, UsageError, check_seed, path_arg, run_main, writable_dir
+from lfd.cli import ArgumentParser, UsageError, check_seed, path_arg, png_file, run_main, writable_dir
 from lfd.learning.demos import Demonstration, save_demonstration
 from lfd.learning.tasks import task_from_name
 from lfd.robot.ik import IKConfig, solve_ik
@@ -443,11 +443,7 @@ def main(argv=None) -> int:
     except ValueError as e:
         raise UsageError(f"--roll: {e}") from None
     if args.plot is not None:  # checked before the minutes of drawing, not when the figure is saved
-        plot = Path(args.plot)
-        if plot.suffix.lower() != ".png":
-            raise UsageError(f"--plot must name a .png file, got {str(plot)!r}")
-        if not plot.parent.is_dir():
-            raise UsageError(f"--plot {plot}: folder {plot.parent} does not exist")
+        png_file(args.plot, "--plot")
     from lfd.learning.demos import demo_files
     if demo_files(args.out):  # the new set would mix with the old one, its ground truth with neither
         raise UsageError(f"--out {args.out} already holds demonstrations; give an empty or new folder")

@@ -330,7 +330,7 @@ class World:
 
 
 def main(argv=None) -> int:
-    from lfd.cli import ArgumentParser, UsageError
+    from lfd.cli import ArgumentParser, UsageError, png_file
 
     ap = ArgumentParser(prog="python -m sim.world", description="Show or render the simulated lab.")
     ap.add_argument("--task", default="powder", help="powder (spoon) or pour (pitcher)")
@@ -345,11 +345,7 @@ def main(argv=None) -> int:
     if args.steps < 0:
         raise UsageError(f"--steps must be >= 0, got {args.steps}")
     if args.snapshot:
-        out = Path(args.snapshot)
-        if out.suffix.lower() != ".png":
-            raise UsageError(f"--snapshot must name a .png file, got {out}")
-        if not out.parent.is_dir():
-            raise UsageError(f"cannot write {out}: folder {out.parent} does not exist")
+        png_file(args.snapshot, "--snapshot")
     try:
         scenario = {n: L.DEFAULT_XY[n] for n in ("paper_towels", "lamp_shade", "vase", "books")} if args.obstacles else None
         world = World(args.task, gui=args.gui, scenario=scenario)
