@@ -9,7 +9,7 @@ import torch
 from helpers import longest_stay
 from lfd.learning.dtw import min_samples
 from lfd.learning.em import EMFitter, FitData
-from lfd.learning.fitconfig import SolverSettings
+from lfd.learning.fitconfig import FLOOR_LIMITS, SolverSettings
 from lfd.learning.learn import FitConfig, fit, initial_guesses
 from lfd.learning.model import step_nll_tensor
 from lfd.learning.synthetic import make_synthetic
@@ -54,6 +54,11 @@ def test_config_options_are_validated():
         with pytest.raises(ValueError, match="FitConfig.floor_weight must be a positive number"):
             FitConfig(floor_weight=bad)
     assert FitConfig(floor_weight=3.0).floor_weight == 3.0
+    for name, widest in FLOOR_LIMITS.items():  # past ~1e154 every restart failed in a Cholesky
+        assert getattr(FitConfig(**{name: widest}), name) == widest
+        for bad in (widest * 1.01, 1e308):
+            with pytest.raises(ValueError, match=f"FitConfig.{name} must be at most {widest:.4g}, wider than"):
+                FitConfig(**{name: bad})
     assert FitConfig(time_steps=8, offsets=(0, 1, 4)).offsets == (0, 1, 4)  # the largest: max(2, T // 2)
     with pytest.raises(ValueError, match=r"FitConfig.offsets: 5 is larger than the largest permitted.* = 4"):
         FitConfig(time_steps=8, offsets=(0, 1, 5))

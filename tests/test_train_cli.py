@@ -229,6 +229,8 @@ CASES = [
     ("subsample-word", _train("--subsample", "half"), "argument --subsample: invalid int value: 'half'"),
     ("floor-zero", _train("--floor-task", "0"),
      "FitConfig.floor_joint, floor_task and floor_attitude must be positive standard deviations, got 0.001, 0.0, 0.01"),
+    ("floor-huge", _train("--floor-joint", "1e308"),  # was a Cholesky error in every restart
+     "FitConfig.floor_joint must be at most 6.283, wider than the feature's whole range"),
     ("floor-attitude-paper", _train("--floor-attitude", "0.02", "--features", "paper"),
      "--floor-attitude applies to the attitude features"),
     ("bad-features", _train("--features", "orientation"), "argument --features: invalid choice: 'orientation'"),

@@ -24,6 +24,12 @@ ENV_MODES = ("learn", "bowl")
 M_STEPS = ("profile", "joint")
 INITS = ("reference", "random", "linear")
 DTYPES = {"float64": torch.float64, "float32": torch.float32}
+# The widest variance floors (standard deviations) that still say something: wider than a feature's
+# whole range, a floor only flattens that feature's term, and past ~1e154 its square overflows and
+# every restart fails in a Cholesky factorization (measured: ``--floor-joint 1e308``). Joints: a full
+# turn (rad), wider than any revolute joint's travel; the tool point: 10 m, wider than any arm's
+# workspace; the attitude: 2, the widest spread of a unit vector's component.
+FLOOR_LIMITS = {"floor_joint": 2 * math.pi, "floor_task": 10.0, "floor_attitude": 2.0}
 
 
 class FitError(UserInputError):
@@ -117,7 +123,7 @@ class FitConfig:
         'attitude' (those and the gripper's x and y axes in that frame; lfd.learning.model).
     floor_joint, floor_task, floor_attitude : the variance-floor prior's standard deviations
         (lfd.learning.priors) of the joint angles (rad), the tool point (m) and the axes (unit
-        vectors' components).
+        vectors' components); at most ``FLOOR_LIMITS``' (a full turn, 10 m, 2).
     floor_weight : its pseudo-observations ``nu``; None = mean observations per time step.
     volume_prior : add ``-2 s k log|det A|`` per observation (``k`` task 3-vectors; lfd.learning.priors); zero for aligned frames.
     tool_radius : metres from the gripper's origin the learned tool point may lie (the tool's
@@ -229,6 +235,10 @@ class FitConfig:
         if not all(math.isfinite(x) and x > 0 for x in (self.floor_joint, self.floor_task, self.floor_attitude)):
             raise ValueError(f"FitConfig.floor_joint, floor_task and floor_attitude must be positive standard "
                              f"deviations, got {self.floor_joint}, {self.floor_task}, {self.floor_attitude}")
+        for name, widest in FLOOR_LIMITS.items():
+            if getattr(self, name) > widest:
+                raise ValueError(f"FitConfig.{name} must be at most {widest:.4g}, wider than the feature's whole "
+                                 f"range (a floor that wide only flattens its term), got {getattr(self, name):g}")
         if self.floor_weight is not None and not (math.isfinite(self.floor_weight) and self.floor_weight > 0):
             raise ValueError(f"FitConfig.floor_weight must be a positive number of pseudo-observations or None "
                              f"(the mean observations per step), got {self.floor_weight}")
