@@ -178,3 +178,47 @@ def test_the_urdf_is_read_without_the_parsers_complaints(tmp_path, capfd):
 def test_a_urdf_with_bad_limits_is_refused(tmp_path, old, new, fragment):
     with pytest.raises(KinematicsError, match=re.escape(fragment)):
         _edited_baxter(tmp_path, old, new)
+
+
+def test_a_scalar_configuration_is_refused_by_name(kin64):
+    with pytest.raises(KinematicsError, match=r"7 joint values.*got shape \(\)"):  # was an IndexError
+        kin64.fk(0.5)
+
+
+_ARM3 = """<?xml version="1.0"?>
+<robot name="arm3">
+  <link name="base"/><link name="l1"/><link name="l2"/><link name="l3"/><link name="tool0"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><origin xyz="0 0 0.1"/>
+    <axis xyz="0 0 1"/><limit lower="-2" upper="2" velocity="1.5" effort="10"/></joint>
+  <joint name="j2" type="{kind}"><parent link="l1"/><child link="l2"/><origin xyz="0 0 0.3"/>
+    <axis xyz="0 1 0"/>{limit}</joint>
+  <joint name="j3" type="revolute"><parent link="l2"/><child link="l3"/><origin xyz="0.3 0 0"/>
+    <axis xyz="0 1 0"/><limit lower="-2" upper="2" velocity="1.5" effort="10"/></joint>
+  <joint name="tool_joint" type="fixed"><parent link="l3"/><child link="tool0"/><origin xyz="0.1 0 0"/></joint>
+</robot>
+"""
+
+
+def arm3(tmp_path, kind="continuous", limit='<limit velocity="1.0" effort="10"/>') -> RobotSpec:
+    """A user's 3-joint arm whose middle joint is ``kind`` with ``limit`` (tests of other robots)."""
+    path = tmp_path / f"arm3_{kind}.urdf"
+    path.write_text(_ARM3.format(kind=kind, limit=limit))
+    return RobotSpec("arm3", str(path), "tool0", ("j1", "j2", "j3"))
+
+
+def test_a_joint_that_turns_without_limits_is_sampled_over_one_turn(tmp_path):
+    """A continuous joint has no limits (inf), and uniform samples of it were NaN (the roadmap's
+    build then failed in scipy's k-d tree); it is sampled over one turn, the limited joints within
+    their limits. A joint that slides without limits cannot be sampled: refused by name."""
+    kin = KinematicModel.from_spec(arm3(tmp_path))
+    assert kin.lower[1] == -np.inf and kin.upper[1] == np.inf
+    Q = kin.sample_uniform(2000, generator=torch.Generator().manual_seed(0)).numpy()
+    assert np.all(np.isfinite(Q))
+    assert Q[:, 1].min() < -3.1 and Q[:, 1].max() > 3.1 and np.all(np.abs(Q[:, 1]) <= np.pi)
+    assert np.all(np.abs(Q[:, [0, 2]]) <= 2.0) and np.abs(Q[:, [0, 2]]).max() > 1.99
+    half = KinematicModel.from_spec(arm3(tmp_path, "revolute", '<limit upper="1" velocity="1.0" effort="10"/>'))
+    Q = half.sample_uniform(500, generator=torch.Generator().manual_seed(0)).numpy()  # one turn below its one limit
+    assert Q[:, 1].max() <= 1.0 and Q[:, 1].min() >= 1.0 - 2 * np.pi and Q[:, 1].min() < 1.0 - 6.0
+    slides = KinematicModel.from_spec(arm3(tmp_path, "prismatic", '<limit velocity="0.5" effort="10"/>'))
+    with pytest.raises(KinematicsError, match=r"joint\(s\) \['j2'\] slide without limits .*pass your own sample_fn"):
+        slides.sample_uniform(3)

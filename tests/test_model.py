@@ -223,3 +223,28 @@ def test_a_model_whose_transitions_never_reach_the_last_step_is_refused():
     ends = stay.clone()
     ends[:-1, 1] = 0.0  # every step but the last may move on (the last may only stay)
     assert TaskModel(*args, ends, ["bowl"], BAXTER_LEFT).time_steps == T
+
+
+def test_the_kinematic_model_follows_the_models_dtype_and_must_be_its_robots(tmp_path):
+    """The README's ``model.kin = KinematicModel.from_spec(model.robot)`` (float64) on a model
+    loaded as float32 failed inside the step cost; it is converted. Another robot's kinematics
+    were taken and planned with; refused. A dtype given as a string was reported as a damaged
+    model folder."""
+    from lfd.robot.kinematics import KinematicModel
+    from lfd.robot.robots import PANDA
+
+    _model().save(tmp_path)
+    f32 = TaskModel.load(tmp_path, dtype=torch.float32)
+    f32.kin = KinematicModel.from_spec(f32.robot)
+    assert f32.kin.dtype == torch.float32
+    lm = torch.eye(4, dtype=torch.float32).expand(2, 4, 4)
+    assert f32.step_nll(torch.zeros(2, 7, dtype=torch.float32), None, lm).dtype == torch.float32
+    with pytest.raises(ValueError, match=r"the kinematic model's joints \['panda_joint1'.*are not those of the "
+                                         r"model's robot 'baxter_left'"):
+        f32.kin = KinematicModel.from_spec(PANDA)
+    with pytest.raises(ValueError, match="are not those of the model's robot"):  # the caller's, not the files' fault
+        TaskModel.load(tmp_path, kin=KinematicModel.from_spec(PANDA))
+    with pytest.raises(TypeError, match="dtype must be a floating-point torch.dtype .* got 'float32'"):
+        TaskModel.load(tmp_path, dtype="float32")
+    with pytest.raises(ValueError, match="device must be a torch device .* got 'gpu'"):
+        TaskModel.load(tmp_path, device="gpu")

@@ -215,8 +215,9 @@ class TaskModel:
             raise ValueError(f"TaskModel.options must be a JSON object of how it was learned, got "
                              f"{type(options).__name__} {options!r}"[:200])
         self.options = dict(options or {})
-        self._kin = kin
+        self._kin = None
         self._validate()
+        self.kin = kin  # checked against the robot
 
     def _validate(self) -> None:
         """Shapes, finiteness and the invariants the planner relies on (a model folder is
@@ -313,6 +314,16 @@ class TaskModel:
 
     @kin.setter
     def kin(self, value):
+        """Another robot's kinematic model is refused (a plan would be made with the wrong arm);
+        one of another dtype or device is converted to the model's (one dtype and device per
+        model: a float32 model given the float64 default failed inside the step cost)."""
+        if value is not None:
+            names = tuple(getattr(value, "joint_names", ()))
+            if names != tuple(self.robot.joint_names):
+                raise ValueError(f"the kinematic model's joints {list(names)} are not those of the model's robot "
+                                 f"{self.robot.name!r}, {list(self.robot.joint_names)}")
+            if value.dtype != self.dtype or value.device != self.device:
+                value = value.to(self.dtype, self.device)
         self._kin = value
 
     def to(self, dtype: torch.dtype | None = None, device=None) -> TaskModel:
@@ -400,6 +411,12 @@ class TaskModel:
         ModelFormatError
             missing files, a ``config.json`` that is not ours, tensors of the wrong shape.
         """
+        if not (isinstance(dtype, torch.dtype) and dtype.is_floating_point):  # was reported as a damaged folder
+            raise TypeError(f"dtype must be a floating-point torch.dtype (torch.float64, torch.float32), got {dtype!r}")
+        try:
+            device = torch.device(device)
+        except (RuntimeError, TypeError) as e:
+            raise ValueError(f"device must be a torch device (cpu, cuda, cuda:1, ...), got {device!r}") from e
         model_dir = Path(model_dir)
         cfg_path, pt_path = model_dir / "config.json", model_dir / "model.pt"
         for p in (cfg_path, pt_path):
@@ -427,9 +444,10 @@ class TaskModel:
                        task=TaskSpec.from_dict(cfg["task"]) if cfg.get("task") else None,
                        all_landmark_names=cfg.get("all_landmark_names"), offsets=cfg["offsets"],
                        covariance=cfg["covariance"], logdet_scale=cfg.get("logdet_scale", 1.0),
-                       options=cfg.get("options"), kin=kin, feature_set=cfg.get("feature_set", "paper"))
+                       options=cfg.get("options"), feature_set=cfg.get("feature_set", "paper"))
         except (KeyError, ValueError, TypeError) as e:
             raise ModelFormatError(f"{model_dir}: inconsistent task model ({e})") from e
+        model.kin = kin  # the caller's, checked against the model's robot (not a fault of the files)
         said = {"time_steps": model.time_steps, "n_features": model.n_features}
         wrong = {k: (cfg[k], v) for k, v in said.items() if k in cfg and cfg[k] != v}
         if wrong:  # config.json from another model beside this model.pt

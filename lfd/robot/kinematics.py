@@ -80,6 +80,22 @@ def _joint_table(urdf_text: str) -> dict[str, dict]:
     return table
 
 
+def _sample_range(joint: dict) -> tuple[float, float] | None:
+    """``(lower, upper)`` to sample a joint from (a row of ``_joint_table``): its limits, and for
+    a missing one of a joint that turns, one turn from the other (``[-pi, pi]`` with neither);
+    None for a joint that slides without both."""
+    lower, upper = joint["lower"], joint["upper"]
+    if lower is not None and upper is not None and math.isfinite(lower) and math.isfinite(upper):
+        return lower, upper
+    if joint["type"] not in ("revolute", "continuous"):
+        return None
+    if lower is not None and math.isfinite(lower):
+        return lower, lower + 2 * math.pi
+    if upper is not None and math.isfinite(upper):
+        return upper - 2 * math.pi, upper
+    return -math.pi, math.pi
+
+
 class KinematicModel:
     """Forward kinematics of the chain from the URDF root to ``end_link``.
 
@@ -141,6 +157,10 @@ class KinematicModel:
                                    for n in joint_names], dtype=dtype, device=self.device)  # (d,)
         self.velocity = torch.tensor([joints[n]["velocity"] if joints[n]["velocity"] is not None else inf
                                       for n in joint_names], dtype=dtype, device=self.device)  # (d,)
+        # where ``sample_uniform`` draws each joint: its limits; a joint that turns without them
+        # (``continuous``) over one turn, which holds every angle modulo 2 pi; None for a joint that
+        # slides without them (it cannot be sampled)
+        self._sample_range = tuple(_sample_range(joints[n]) for n in joint_names)
 
     @classmethod
     def from_spec(cls, spec: RobotSpec = BAXTER_LEFT, dtype: torch.dtype = torch.float64,
@@ -171,7 +191,7 @@ class KinematicModel:
     def _check_q(self, q: torch.Tensor) -> torch.Tensor:
         if not torch.is_tensor(q):
             q = torch.as_tensor(q, dtype=self.dtype, device=self.device)
-        if q.shape[-1] != self.dof:
+        if q.dim() == 0 or q.shape[-1] != self.dof:  # (a scalar was an IndexError)
             raise KinematicsError(
                 f"expected configurations with {self.dof} joint values {list(self.joint_names)}, "
                 f"got shape {tuple(q.shape)}")
@@ -228,6 +248,15 @@ class KinematicModel:
         return ((q >= self.lower - tol) & (q <= self.upper + tol)).all(dim=-1)
 
     def sample_uniform(self, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
-        """``n`` configurations uniform within the joint limits: ``(n, d)``."""
+        """``n`` configurations uniform within the joint limits: ``(n, d)``; a joint that turns
+        without limits (``continuous``) over one turn, ``[-pi, pi]``.
+
+        Raises ``KinematicsError`` for a joint that slides without limits (a prismatic joint
+        whose URDF gives none): no range to draw from; a planner needs its own ``sample_fn``."""
+        unbounded = [name for name, r in zip(self.joint_names, self._sample_range) if r is None]
+        if unbounded:
+            raise KinematicsError(f"joint(s) {unbounded} slide without limits in {self.urdf_path.name}: no range to "
+                                  "sample them from; give them limits, or pass your own sample_fn to the planner")
+        lo, hi = (torch.tensor(x, dtype=self.dtype, device=self.device) for x in zip(*self._sample_range))  # (d,)
         u = torch.rand(n, self.dof, generator=generator, dtype=self.dtype, device="cpu").to(self.device)
-        return self.lower + u * (self.upper - self.lower)
+        return lo + u * (hi - lo)
