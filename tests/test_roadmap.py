@@ -195,3 +195,16 @@ def test_errors_name_the_argument():
         RoadmapSettings(k_scale=0)
     with pytest.raises(ValueError, match="n >= 1"):
         Roadmap.build(uniform(np.random.default_rng(0)), 0, in_box, segment_hits_box)
+
+
+def test_a_collision_callable_answering_in_another_shape_is_refused_by_name():
+    """A collision_fn answering per link (an array) raised numpy's 'truth value is ambiguous', a
+    batch_collision_fn answering one bool numpy's 'cannot reshape'."""
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match=r"must answer one configuration with a bool or a name, got ndarray of shape \(3,\)"):
+        Roadmap.build(uniform(rng), 10, lambda q: np.zeros(3, dtype=bool), lambda a, b: False)
+    with pytest.raises(ValueError, match=r"batch_collision_fn must answer each of the \d+ configurations, shape \(\d+,\); got shape \(\)"):
+        Roadmap.build(uniform(rng), 10, lambda q: False, lambda a, b: False, batch_collision_fn=lambda Q: np.bool_(False))
+    rm = Roadmap.build(uniform(rng), 10, lambda q: False, lambda a, b: False,
+                       batch_collision_fn=lambda Q: np.zeros((len(Q), 1), dtype=bool))  # (B, 1) stays accepted
+    assert rm.n == 10

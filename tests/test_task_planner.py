@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -599,3 +600,87 @@ def test_the_plan_plot_is_a_png_and_leaves_the_callers_matplotlib_alone(kin, tmp
     assert matplotlib.get_backend() == backend
     with Image.open(png) as im:
         assert im.format == "PNG" and im.size == (770, 770)
+
+
+def test_a_start_or_goal_outside_the_joint_limits_gets_its_status(kin):
+    """An arm given in degrees was planned from and answered 'ok' (the caller's collision_fn did not
+    check limits); beyond the limits by more than a recording's tolerance it is a status naming
+    the joints, within it a plan."""
+    planner = TaskPlanner(_model(kin), lambda q: False, lambda a, b: False,
+                          settings=TaskPlannerSettings(n_vertices=60, seed=0))
+    bowl = np.eye(4)
+    bowl[:3, 3] = [0.7, 0.4, -0.1]
+    planner.update_landmarks(["bowl"], bowl[None])
+    q0 = _model(kin).mu[0, :7].numpy()
+    res = planner.plan(np.degrees(q0), 0)
+    assert res.status == "start_outside_limits" and len(res.configurations) == 0
+    assert "left_e1=" in res.message and "outside the joint limits" in res.message
+    assert planner.plan(q0, 0, q_goal=np.full(7, 9.0)).status == "goal_outside_limits"
+    upper = kin.upper.numpy()
+    at_edge = np.minimum(q0, upper)
+    at_edge[3] = upper[3] + 0.01  # within the recordings' tolerance
+    assert planner.plan(at_edge, 0).status not in ("start_outside_limits", "goal_outside_limits")
+
+
+def test_time_steps_settings_names_and_samples_are_checked(kin):
+    """Each was accepted and failed later, or was silently wrong: a float count, a NumPy seed
+    (torch's manual_seed refused it), a NaN inflation (a Cholesky error), a dict for the roadmap's
+    settings; t_current None, NaN or True; a landmark named twice (the second pose ignored); a
+    sample_fn answering (d, n) (reshaped into scrambled configurations)."""
+    for kw, fragment in [({"n_vertices": 500.0}, "TaskPlannerSettings.n_vertices must be a whole number >= 2"),
+                         ({"extra_posture_rounds": 1.5}, "extra_posture_rounds must be a whole number >= 0"),
+                         ({"region_inflation": float("nan")}, "region_inflation must be a finite number > 0"),
+                         ({"regrow_distance": float("inf")}, "regrow_distance must be a finite number > 0"),
+                         ({"posture_spread": float("nan")}, "posture_spread must be a finite number >= 0"),
+                         ({"bias_fraction": float("nan")}, r"bias_fraction must be in \[0, 1\]")]:
+        with pytest.raises(ValueError, match=fragment):
+            TaskPlannerSettings(**kw)
+    with pytest.raises(TypeError, match="TaskPlannerSettings.roadmap must be a RoadmapSettings, got dict"):
+        TaskPlannerSettings(roadmap={"k_scale": 2.0})
+    settings = TaskPlannerSettings(n_vertices=np.int64(40), seed=np.int64(3))
+    assert type(settings.seed) is int and type(settings.n_vertices) is int
+    bowl = np.eye(4)
+    bowl[:3, 3] = [0.7, 0.4, -0.1]
+    planner = TaskPlanner(_model(kin), lambda q: False, lambda a, b: False, settings=settings)
+    with pytest.raises(ValueError, match=r"landmark name\(s\) \['bowl'\] given more than once"):
+        planner.update_landmarks(["bowl", "bowl"], np.stack([bowl, np.eye(4)]))
+    planner.update_landmarks(["bowl"], bowl[None])
+    q0 = _model(kin).mu[0, :7].numpy()
+    for t in (None, float("nan"), True, "2"):
+        with pytest.raises(ValueError, match=rf"Expected t_current an integer in \[0, 5\], got {re.escape(repr(t))}"):
+            planner.plan(q0, t)
+    assert planner.plan(q0, np.int64(0)).ok
+    transposed = TaskPlanner(_model(kin), lambda q: False, lambda a, b: False,
+                             sample_fn=lambda n: kin.sample_uniform(n).numpy().T,
+                             settings=TaskPlannerSettings(n_vertices=40, seed=0, region_fraction=0.0))
+    with pytest.raises(ValueError, match=r"sample_fn\(\d+\) must return \d+ finite configurations, shape \(\d+, 7\); got shape \(7, \d+\)"):
+        transposed.update_landmarks(["bowl"], bowl[None])
+
+
+def test_a_continuous_joint_plans_and_a_joint_without_a_velocity_limit_is_refused(tmp_path):
+    """A user's arm with a continuous joint: its default samples were NaN and the build failed in
+    scipy; it plans. Without a velocity limit its motions would take no time in the edge costs:
+    refused by name."""
+    from test_kinematics import arm3
+
+    def model_of(spec):
+        kin3 = KinematicModel.from_spec(spec)
+        T = 5
+        mu = torch.zeros(T, 6, dtype=torch.float64)
+        mu[:, 3:] = torch.linspace(0.3, 0.05, T, dtype=torch.float64)[:, None] * torch.tensor([1.0, 0.0, 1.0])
+        sigma_inv = torch.diag_embed(1 / torch.tensor([1.0] * 3 + [0.1] * 3, dtype=torch.float64)).repeat(T, 1, 1)
+        log_trans = torch.log(torch.tensor([0.5, 0.5], dtype=torch.float64)).repeat(T, 1)
+        log_trans[-1] = torch.tensor([0.0, -math.inf])
+        return TaskModel(torch.tensor([0.0, 0.0, 0.0], dtype=torch.float64), torch.ones(1, dtype=torch.float64), mu,
+                         sigma_inv, log_trans, ["bowl"], spec, task=POWDER, kin=kin3, offsets=(0, 1))
+
+    bowl = np.eye(4)
+    bowl[:3, 3] = [0.3, 0.0, 0.2]
+    planner = TaskPlanner(model_of(arm3(tmp_path)), lambda q: False, lambda a, b: False,
+                          settings=TaskPlannerSettings(n_vertices=80, seed=0))
+    planner.update_landmarks(["bowl"], bowl[None])
+    res = planner.plan(np.zeros(3), 0)
+    assert res.ok, res.message
+    assert np.all(np.isfinite(planner.roadmap.vertices))
+    with pytest.raises(ValueError, match=r"joint\(s\) \['j2'\] have no velocity limit in arm3_continuous.urdf"):
+        TaskPlanner(model_of(arm3(tmp_path, limit="")), lambda q: False, lambda a, b: False)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import numbers
 import time
 from dataclasses import dataclass, field
 
@@ -37,13 +38,22 @@ from lfd.planning.roadmap import Roadmap, k_prm_star
 from lfd.planning.stepcost import CostError, StepCost
 from lfd.planning.stsearch import SearchBudgetExceeded, SearchGraph, astar, cost_to_go, transition_table
 
-__all__ = ["STATUSES", "ClosedLoopPlanner", "PlanResult", "PlannerSettings"]
+__all__ = ["STATUSES", "ClosedLoopPlanner", "PlanResult", "PlannerSettings", "time_step"]
 
-STATUSES = ("ok", "no_path", "start_in_collision", "goal_in_collision", "missing_landmark",
-            "invalid_cost", "budget_exceeded", "unreachable")
+STATUSES = ("ok", "no_path", "start_in_collision", "goal_in_collision", "start_outside_limits",
+            "goal_outside_limits", "missing_landmark", "invalid_cost", "budget_exceeded", "unreachable")
 # A* expansions allowed with a heuristic computed before edges were dropped; past them the
 # heuristic is recomputed (tens of ms) and the search runs again (measured: benchmarks/reaction.py)
 STALE_EXPANSIONS = 300
+
+
+def time_step(t, T: int) -> int:
+    """``t`` as an ``int`` if it is a time step of a ``T``-step task (a whole number in ``[0, T)``,
+    a whole float too), else a ``ValueError`` (``None``, NaN and ``True`` were TypeErrors or taken)."""
+    value = float(t) if isinstance(t, numbers.Real) and not isinstance(t, bool) else math.nan
+    if not (math.isfinite(value) and value == int(value) and 0 <= value < T):
+        raise ValueError(f"Expected t_current an integer in [0, {T - 1}], got {t!r}")
+    return int(value)
 
 
 @dataclass(frozen=True)
@@ -211,8 +221,7 @@ class ClosedLoopPlanner:
         """
         tic, cpu0 = time.perf_counter(), time.process_time()
         q = self._check_q(q_current, "q_current")
-        if int(t_current) != t_current or not 0 <= t_current < self.T:
-            raise ValueError(f"Expected t_current an integer in [0, {self.T - 1}], got {t_current}")
+        t_current = time_step(t_current, self.T)
         g = None if q_goal is None else self._check_q(q_goal, "q_goal")
         if self._landmark_error is not None:
             return self._result("missing_landmark", tic, self._landmark_error)

@@ -158,7 +158,11 @@ class Roadmap:
         if self.batch_collision_fn is not None:
             out = self.batch_collision_fn(Q)
             # (a list mixing names and False must not become the string "False")
-            out = (out if isinstance(out, np.ndarray) else np.asarray(out, dtype=object)).reshape(len(Q))
+            out = out if isinstance(out, np.ndarray) else np.asarray(out, dtype=object)
+            if out.size != len(Q):  # (a scalar was numpy's 'cannot reshape')
+                raise ValueError(f"batch_collision_fn must answer each of the {len(Q)} configurations, "
+                                 f"shape ({len(Q)},); got shape {out.shape}")
+            out = out.reshape(len(Q))
             if out.dtype.kind == "U":  # names already
                 return out
             if out.dtype.kind == "O":
@@ -272,6 +276,9 @@ def _name(hit) -> str:
     answer, ``""`` for a falsy one (free)."""
     if isinstance(hit, str):
         return hit
+    if np.size(hit) != 1:  # (an array was numpy's 'truth value ... is ambiguous')
+        raise ValueError(f"a collision callable must answer one configuration with a bool or a name, got "
+                         f"{type(hit).__name__} of shape {np.shape(hit)}")
     return UNNAMED if hit else ""
 
 

@@ -45,9 +45,10 @@ import math
 import numpy as np
 import torch
 
+from lfd.learning.demos import LIMIT_TOLERANCE
 from lfd.learning.model import TaskModel
 from lfd.planning.growth import BiasedGrowth
-from lfd.planning.planner import ClosedLoopPlanner, PlanResult
+from lfd.planning.planner import ClosedLoopPlanner, PlanResult, time_step
 from lfd.planning.roadmap import Roadmap
 from lfd.planning.stepcost import FK_BATCH, ModelStepCost
 from lfd.planning.task_settings import TaskPlannerSettings, default_vertices
@@ -98,6 +99,11 @@ class TaskPlanner:
         self.dt = _time_base(model, dt)
         self.settings = settings = settings or TaskPlannerSettings()
         self.kin = model.kin
+        untimed = [n for n, v in zip(self.kin.joint_names, self.kin.velocity.tolist()) if not math.isfinite(v)]
+        if untimed:  # its motions would take no time, so the edge costs would not weigh them
+            raise ValueError(f"joint(s) {untimed} have no velocity limit in {self.kin.urdf_path.name}: the planner "
+                             "times each motion by the joints' velocity limits (the edge costs of Sec. V); give "
+                             "them <limit velocity=...>")
         self._gen = torch.Generator().manual_seed(settings.seed)
         self._rng = np.random.default_rng(settings.seed)
         if sample_fn is None:
@@ -150,7 +156,12 @@ class TaskPlanner:
         m = int(self._rng.binomial(n, self.settings.region_fraction))
         parts = [self.region_samples(m)]
         if n > m:
-            parts.append(np.asarray(self.sample_fn(n - m), dtype=float).reshape(n - m, self.kin.dof))
+            Q = np.asarray(self.sample_fn(n - m), dtype=float)
+            if Q.shape != (n - m, self.kin.dof) or not np.all(np.isfinite(Q)):  # (d, n) was reshaped, scrambled
+                raise ValueError(f"sample_fn({n - m}) must return {n - m} finite configurations, shape "
+                                 f"({n - m}, {self.kin.dof}); got shape {Q.shape}"
+                                 + ("" if Q.shape != (n - m, self.kin.dof) else " with NaN or inf"))
+            parts.append(Q)
         return self._rng.permutation(np.concatenate(parts, axis=0))
 
     # -- landmarks ------------------------------------------------------------------------
@@ -161,6 +172,9 @@ class TaskPlanner:
         and new place are checked again. With ``grow=False`` a far move of the task landmarks
         only sets ``growth_pending``; ``grow()`` adds the biased vertices later."""
         names = [str(n) for n in names]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:  # the first pose was used and the second ignored
+            raise ValueError(f"landmark name(s) {twice} given more than once: one pose per landmark")
         poses = np.asarray(T_world_landmarks, dtype=float)
         if poses.shape != (len(names), 4, 4):
             raise ValueError(f"T_world_landmarks must have shape ({len(names)}, 4, 4) for the {len(names)} "
@@ -251,14 +265,33 @@ class TaskPlanner:
     # -- planning -------------------------------------------------------------------------
     def plan(self, q_current, t_current: int = 0, q_goal=None) -> PlanResult:
         """Best plan from ``(q_current, t_current)`` to the last time step (see ``ClosedLoopPlanner``)."""
+        t_current = time_step(t_current, self.model.time_steps)
+        for name, q in (("start", q_current), ("goal", q_goal)):
+            outside = self._outside_limits(q)
+            if outside:  # (an arm given in degrees was planned from and answered 'ok')
+                return self._no_plan(f"{name}_outside_limits", f"the {name} configuration is outside the joint "
+                                     f"limits (by more than {LIMIT_TOLERANCE} rad): {outside}")
         if self.planner is None or self._missing:
             return self._no_plan("missing_landmark",
                                  self._missing or "no landmarks yet: call update_landmarks first")
-        if not self._growth.can_reach_end(int(t_current)):
+        if not self._growth.can_reach_end(t_current):
             return self._no_plan("unreachable", "the arm cannot reach the tool-point targets of time "
                                  f"step(s) {self._growth.unreachable.tolist()} for these landmarks (IK failed "
                                  "for every sampled execution), and the task cannot skip them")
         return self.planner.plan(q_current, t_current, q_goal)
+
+    def _outside_limits(self, q) -> str:
+        """The joints of ``q (d,)`` beyond the URDF limits by more than ``LIMIT_TOLERANCE`` (what
+        a recording may show), as ``"name=value"``; ``""`` when none, or when ``q`` is None or not
+        ``d`` finite numbers (the planner's ``ValueError`` says so)."""
+        if q is None:
+            return ""
+        q = np.asarray(q, dtype=float).reshape(-1)
+        if q.shape != (self.kin.dof,) or not np.all(np.isfinite(q)):
+            return ""
+        lo, hi = self.kin.lower.cpu().numpy(), self.kin.upper.cpu().numpy()
+        out = np.flatnonzero((q < lo - LIMIT_TOLERANCE) | (q > hi + LIMIT_TOLERANCE))
+        return ", ".join(f"{self.kin.joint_names[j]}={q[j]:.3f} (limits {lo[j]:.3f}, {hi[j]:.3f})" for j in out)
 
     def _no_plan(self, status: str, message: str) -> PlanResult:
         d = self.kin.dof

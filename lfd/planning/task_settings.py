@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass, field
 
-import numpy as np
-
+from lfd.learning.tasks import check_whole
 from lfd.planning.planner import PlannerSettings
 from lfd.planning.roadmap import RoadmapSettings
 
@@ -66,26 +67,33 @@ class TaskPlannerSettings:
     planner: PlannerSettings = field(default_factory=PlannerSettings)
 
     def __post_init__(self):
-        if self.n_vertices is not None and self.n_vertices < 2:
-            raise ValueError(f"n_vertices must be at least 2, got {self.n_vertices}")
-        if not 0.0 <= self.bias_fraction <= 1.0:
-            raise ValueError(f"bias_fraction must be in [0, 1], got {self.bias_fraction}")
-        if not 0.0 <= self.region_fraction <= 1.0 or self.region_inflation <= 0:
-            raise ValueError("region_fraction must be in [0, 1] and region_inflation > 0, got "
-                             f"{self.region_fraction}, {self.region_inflation}")
-        if self.min_free_per_step < 0 or self.extra_posture_rounds < 0:
-            raise ValueError("min_free_per_step and extra_posture_rounds must be >= 0, got "
-                             f"{self.min_free_per_step}, {self.extra_posture_rounds}")
-        if not 0.0 <= self.posture_share <= 1.0 or self.posture_spread < 0:
-            raise ValueError("posture_share must be in [0, 1] and posture_spread >= 0, got "
-                             f"{self.posture_share}, {self.posture_spread}")
-        if not self.object_radius >= 0:
-            raise ValueError(f"object_radius must be >= 0, got {self.object_radius}")
-        if self.regrow_distance <= 0 or (self.regrow_vertices is not None and self.regrow_vertices < 0):
-            raise ValueError("regrow_distance must be > 0 and regrow_vertices >= 0, got "
-                             f"{self.regrow_distance}, {self.regrow_vertices}")
-        if self.max_vertices is not None and not (self.max_vertices >= 2 and self.max_vertices >= (self.n_vertices or 2)):
-            raise ValueError(f"max_vertices must be None or at least n_vertices ({self.n_vertices}) and 2, "
-                             f"got {self.max_vertices}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed < 2**63:
-            raise ValueError(f"seed must be a whole number in [0, 2**63), got {self.seed!r}")
+        # whole numbers (a NumPy integer too: ``seed=np.int64(3)`` failed in torch's manual_seed) and
+        # finite fractions: a float count or a NaN failed deep in torch or in a Cholesky
+        for name, least in (("n_vertices", 2), ("min_free_per_step", 0), ("extra_posture_rounds", 0),
+                            ("regrow_vertices", 0), ("max_vertices", 0), ("seed", 0)):
+            value = getattr(self, name)
+            if value is not None or name in ("min_free_per_step", "extra_posture_rounds", "seed"):
+                object.__setattr__(self, name, check_whole(value, f"TaskPlannerSettings.{name}", least))
+        for name in ("bias_fraction", "region_fraction", "posture_share"):
+            if not _real(getattr(self, name)) or not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"TaskPlannerSettings.{name} must be in [0, 1], got {getattr(self, name)!r}")
+        for name, positive in (("region_inflation", True), ("regrow_distance", True), ("posture_spread", False),
+                               ("object_radius", False)):
+            value = getattr(self, name)
+            if not _real(value) or not math.isfinite(value) or value < 0 or (positive and value == 0):
+                raise ValueError(f"TaskPlannerSettings.{name} must be a finite number {'> 0' if positive else '>= 0'}, "
+                                 f"got {value!r}")
+        if self.max_vertices is not None and self.max_vertices < max(2, self.n_vertices or 2):
+            raise ValueError(f"TaskPlannerSettings.max_vertices must be None or at least n_vertices "
+                             f"({self.n_vertices}) and 2, got {self.max_vertices}")
+        if self.seed >= 2**63:
+            raise ValueError(f"TaskPlannerSettings.seed must be a whole number in [0, 2**63), got {self.seed!r}")
+        for name, kind in (("roadmap", RoadmapSettings), ("planner", PlannerSettings)):
+            if not isinstance(getattr(self, name), kind):  # a dict was taken, then failed as an AttributeError
+                raise TypeError(f"TaskPlannerSettings.{name} must be a {kind.__name__}, got "
+                                f"{type(getattr(self, name)).__name__}")
+
+
+def _real(value) -> bool:
+    """A real number, not a bool (nor a string)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
