@@ -567,3 +567,18 @@ def test_an_em_stopped_by_its_iteration_limit_returns_the_alignment_its_model_wa
     t_idx = np.concatenate(res.alignments)
     for t in range(T_STEPS):
         assert torch.allclose(m.mu[t], f[torch.as_tensor(t_idx == t)].mean(0), atol=1e-9), t
+
+
+def test_config_counts_are_whole_numbers_and_other_settings_numbers():
+    for name, bad in (("time_steps", 4.0), ("restarts", 2.0), ("time_steps", "8"), ("restarts", True)):
+        with pytest.raises(ValueError, match=rf"FitConfig.{name} must be a whole number >= \d, got {bad!r}"):
+            FitConfig(**{name: bad})
+    cfg = FitConfig(time_steps=np.int64(8), restarts=np.int32(2))
+    assert (cfg.time_steps, cfg.restarts) == (8, 2) and type(cfg.time_steps) is int
+    for name in ("prune_threshold", "floor_joint", "floor_task", "floor_attitude", "max_dwell", "floor_weight",
+                 "logdet_scale", "tool_radius", "trans_floor"):  # Python's TypeErrors named no field
+        with pytest.raises(ValueError, match=rf"FitConfig.{name} must be a number, got '0.1'"):
+            FitConfig(**{name: "0.1"})
+    for name in ("em_tol", "lbfgs_tol_grad", "tool_init_std", "tool_search"):
+        with pytest.raises(ValueError, match=rf"SolverSettings.{name} must be a number, got '0.1'"):
+            SolverSettings(**{name: "0.1"})

@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -30,6 +31,16 @@ DTYPES = {"float64": torch.float64, "float32": torch.float32}
 # turn (rad), wider than any revolute joint's travel; the tool point: 10 m, wider than any arm's
 # workspace; the attitude: 2, the widest spread of a unit vector's component.
 FLOOR_LIMITS = {"floor_joint": 2 * math.pi, "floor_task": 10.0, "floor_attitude": 2.0}
+
+
+def _check_numbers(obj, names) -> None:
+    """``ValueError`` naming the first field of ``obj`` among ``names`` that is not a real number
+    (None passes: the fields that take it say what it means); a string gave Python's TypeError
+    from a comparison, naming no field."""
+    for name in names:
+        value = getattr(obj, name)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)):
+            raise ValueError(f"{type(obj).__name__}.{name} must be a number, got {value!r}")
 
 
 class FitError(UserInputError):
@@ -75,6 +86,7 @@ class SolverSettings:
             raise ValueError(f"SolverSettings.m_step must be one of {', '.join(M_STEPS)}; got {self.m_step!r}")
         for name in ("max_em_iters", "lbfgs_max_iter", "lbfgs_history", "joint_max_iter"):
             check_whole(getattr(self, name), f"SolverSettings.{name}", 1)
+        _check_numbers(self, ("em_tol", "lbfgs_tol_grad", "tool_init_std", "tool_search"))
         if not (self.em_tol >= 0 and self.lbfgs_tol_grad >= 0 and self.tool_init_std >= 0):
             raise ValueError("SolverSettings.em_tol, lbfgs_tol_grad and tool_init_std must be >= 0, got "
                              f"{self.em_tol}, {self.lbfgs_tol_grad}, {self.tool_init_std}")
@@ -203,8 +215,10 @@ class FitConfig:
         except (RuntimeError, ValueError, TypeError) as e:
             raise ValueError(f"FitConfig.device must be a torch device string (cpu, cuda, cuda:1, mps, ...); "
                              f"got {self.device!r}") from e
-        if int(self.time_steps) < 2:
-            raise ValueError(f"FitConfig.time_steps must be at least 2, got {self.time_steps}")
+        object.__setattr__(self, "time_steps", check_whole(self.time_steps, "FitConfig.time_steps", 2))
+        object.__setattr__(self, "restarts", check_whole(self.restarts, "FitConfig.restarts", 1))
+        _check_numbers(self, ("prune_threshold", "logdet_scale", "floor_joint", "floor_task", "floor_attitude",
+                              "floor_weight", "trans_floor", "max_dwell", "tool_radius"))
         if not isinstance(self.solver, SolverSettings):
             raise TypeError(f"FitConfig.solver must be a SolverSettings, got {type(self.solver).__name__}")
         if self.band is not None:  # wider than the model would constrain nothing: that is None
@@ -218,8 +232,6 @@ class FitConfig:
         if check_whole(self.seed, "FitConfig.seed", 0) >= 2**63:  # numpy and torch both take it
             raise ValueError(f"FitConfig.seed must be a whole number in [0, 2**63), got {self.seed!r}")
         object.__setattr__(self, "subsample", check_stride(self.subsample, "FitConfig.subsample"))
-        if int(self.restarts) < 1:
-            raise ValueError(f"FitConfig.restarts must be at least 1, got {self.restarts}")
         if isinstance(self.offsets, (str, bytes)) or not len(self.offsets):
             raise ValueError(f"FitConfig.offsets must be a sequence of whole numbers, got {self.offsets!r}")
         object.__setattr__(self, "offsets", tuple(check_whole(k, "each of FitConfig.offsets", 0)
