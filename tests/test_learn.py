@@ -582,3 +582,16 @@ def test_config_counts_are_whole_numbers_and_other_settings_numbers():
     for name in ("em_tol", "lbfgs_tol_grad", "tool_init_std", "tool_search"):
         with pytest.raises(ValueError, match=rf"SolverSettings.{name} must be a number, got '0.1'"):
             SolverSettings(**{name: "0.1"})
+
+
+@pytest.mark.parametrize("which", ["zeta_prior", "eta_prior"])
+def test_a_prior_that_returns_nan_fails_its_restart_by_name(synth, kin, which):
+    """Was an IndexError inside torch's LBFGS line search."""
+    from lfd.learning.fitconfig import FitError
+    prior = lambda *args: torch.log(torch.zeros((), dtype=torch.float64)) * 0.0  # noqa: E731 (NaN)
+    cfg = FitConfig(time_steps=T_STEPS, restarts=1, solver=SolverSettings(max_em_iters=3, tool_grid=2),
+                    **{which: prior})
+    with pytest.warns(RuntimeWarning), pytest.raises(
+            FitError, match=r"every one of the 1 restarts failed: restart 0 dropped: the M-step's objective is nan "
+                            r"at LBFGS evaluation \d+ \(a zeta_prior or eta_prior that returns NaN or inf\?\)"):
+        fit(synth[0], kin, cfg, workers=1)

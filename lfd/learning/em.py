@@ -204,10 +204,26 @@ class EMFitter:
 
     # -- steps
     def _lbfgs(self, params, closure, max_iter):
+        """LBFGS on ``closure``'s objective; ``FloatingPointError`` (the restart fails) when it is NaN,
+        or not finite where LBFGS starts: torch's line search then ended in an ``IndexError``
+        (a ``zeta_prior`` returning NaN)."""
         opt = torch.optim.LBFGS(params, lr=1.0, max_iter=max_iter, history_size=self.cfg.solver.lbfgs_history,
                                 tolerance_grad=self.cfg.solver.lbfgs_tol_grad, tolerance_change=1e-12,
                                 line_search_fn="strong_wolfe")
-        opt.step(closure)
+        calls = 0
+
+        def checked():
+            nonlocal calls
+            loss = closure()
+            value = float(loss.detach())
+            if math.isnan(value) or (calls == 0 and not math.isfinite(value)):
+                prior = " (a zeta_prior or eta_prior that returns NaN or inf?)" if (
+                    self.cfg.zeta_prior is not None or self.cfg.eta_prior is not None) else ""
+                raise FloatingPointError(f"the M-step's objective is {value} at LBFGS evaluation {calls + 1}{prior}")
+            calls += 1
+            return loss
+
+        opt.step(checked)
 
     def search_tool(self, tool, w, t_idx):
         """The best start for the tool point's LBFGS: ``tool`` or a point of a ``g^3`` grid
