@@ -307,3 +307,34 @@ def test_tracked_landmarks_load_and_subsample_with_their_samples(good_dir, kin):
     thin = ds.subsample(3)
     assert thin.demos[1].landmarks.shape == (len(T[::3]), 3, 4, 4) and thin.demos[0].landmarks.shape == (3, 4, 4)
     np.testing.assert_array_equal(thin.demos[1].landmarks, T[::3])
+
+
+def test_names_given_as_one_string_are_refused(tmp_path):
+    """save_demonstration(landmark_names="bowl") wrote 4 one-letter names; the load blamed the poses."""
+    from lfd.learning.demos import save_demonstration
+    ds = _demoset()
+    with pytest.raises(ValueError, match=r"landmark_names must be a list of names, got the string 'bowl'"):
+        save_demonstration(tmp_path / "d.npz", ds.demos[0], ds.joint_names, "bowl", ds.robot)
+    with pytest.raises(ValueError, match=r"joint_names must be a list of names, got the string 'left_s0'"):
+        save_demonstration(tmp_path / "d.npz", ds.demos[0], "left_s0", NAMES, ds.robot)
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_demonstration_holds_lists_as_arrays():
+    """Demonstration(q=list).n_samples was an AttributeError."""
+    from lfd.learning.demos import Demonstration
+    d = _demoset().demos[0]
+    listed = Demonstration(q=d.q.tolist(), dt=d.dt, landmarks=d.landmarks.tolist())
+    assert listed.n_samples == d.n_samples and isinstance(listed.landmarks, np.ndarray)
+    assert np.array_equal(listed.q, d.q)
+
+
+def test_load_demos_checks_its_arguments(good_dir, kin):
+    """time_steps=0 or 2.5 was taken as given; a NaN limit_tolerance turned the limit check off."""
+    for bad in (0, 1, 2.5, True):
+        with pytest.raises(ValueError, match=rf"^time_steps must be a whole number >= 2, got {bad!r}$"):
+            load_demos(good_dir, time_steps=bad, kin=kin)
+    for bad in (float("nan"), float("inf"), -0.1, "0.02", None):
+        with pytest.raises(ValueError, match=rf"^limit_tolerance must be a finite angle >= 0 \(rad\), got {bad!r}$"):
+            load_demos(good_dir, kin=kin, limit_tolerance=bad)
+    assert len(load_demos(good_dir, time_steps=np.int64(2), kin=kin, limit_tolerance=0).demos) == 2

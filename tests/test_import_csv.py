@@ -284,3 +284,34 @@ def test_angles_recorded_modulo_a_turn_are_unwrapped_into_the_limits(tmp_path):
            [["0.0", "bowl", "0.8", "0.3", "0.0", "0", "0", "0", "1"]])
     ds, _ = import_recordings(tmp_path / "rec", BAXTER_LEFT, 20.0)
     assert np.abs(ds.demos[0].q - q).max() < 1e-5
+
+
+def test_a_task_at_another_interval_than_the_rate_is_refused():
+    """rate=10 with TaskSpec(dt=0.02) gave samples 0.1 s apart and a model whose task.dt was 0.02."""
+    from lfd.io.recordings import RecordingError
+    from lfd.learning.tasks import TaskSpec
+    with pytest.raises(RecordingError, match=r"^task 'handover': dt=0.02 differs from the demonstrations' sampling "
+                                             r"interval dt=0.1 .*; at rate=10 Hz the samples are 0.1 s apart$"):
+        import_recordings(DATA, BAXTER_LEFT, 10.0, task=TaskSpec(name="handover", dt=0.02, time_steps=8))
+
+
+def _scaled():
+    T = np.eye(4)
+    T[:3, :3] *= 2.0  # doubled every landmark's position
+    return T
+
+
+@pytest.mark.parametrize("frame", [np.eye(3), _scaled(), np.where(np.eye(4) > 0, np.nan, 0.0), "base"],
+                         ids=["3x3", "scaled", "nan", "str"])
+def test_a_landmark_frame_that_is_not_a_rigid_transform_is_refused(frame):
+    from lfd.io.recordings import RecordingError
+    with pytest.raises(RecordingError, match=r"^T_base_frame must be a rigid transform, a finite \(4, 4\) matrix"):
+        import_recordings(DATA, BAXTER_LEFT, 10.0, T_base_frame=frame)
+
+
+def test_joint_columns_degrees_must_be_true_or_false():
+    """JointColumns(degrees="false") built in Python counted as degrees."""
+    from lfd.io.recordings import RecordingError
+    with pytest.raises(RecordingError, match=r"^JointColumns: 'degrees' must be true or false, got 'false'$"):
+        JointColumns(degrees="false")
+    assert JointColumns(degrees=np.bool_(True)).degrees is True

@@ -1,6 +1,7 @@
 """The EM fit: objective pieces against references, and recovery of a known model."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -567,6 +568,54 @@ def test_an_em_stopped_by_its_iteration_limit_returns_the_alignment_its_model_wa
     t_idx = np.concatenate(res.alignments)
     for t in range(T_STEPS):
         assert torch.allclose(m.mu[t], f[torch.as_tensor(t_idx == t)].mean(0), atol=1e-9), t
+
+
+def _demo0(ds, **changes):
+    return replace(ds, demos=(replace(ds.demos[0], **changes), *ds.demos[1:]))
+
+
+# (id, the DemoSet changed, the message): fit checks a set built in Python as load_demos checks files
+FIT_INPUTS = [
+    ("one-name-for-five-poses", lambda ds: replace(ds, landmark_names=ds.landmark_names[:1]),
+     r"demonstration 'synth_00': key 'landmark_poses' must have shape \(1, 4, 4\)"),
+    ("positions-not-poses", lambda ds: _demo0(ds, landmarks=ds.demos[0].landmarks[..., :3, 3]),
+     r"demonstration 'synth_00': key 'landmark_poses' must be numeric of shape"),
+    ("not-rigid", lambda ds: _demo0(ds, landmarks=ds.demos[0].landmarks * 2.0),
+     r"demonstration 'synth_00': landmark 'bowl' pose is not a rigid transform"),
+    ("dt-negative", lambda ds: replace(ds, demos=tuple(replace(d, dt=-0.1) for d in ds.demos)),
+     r"demonstration 'synth_00': key 'dt' \(sampling interval, seconds\) must be positive"),
+    ("dt-differs", lambda ds: _demo0(ds, dt=0.5),
+     r"demonstration 'synth_01': sampling interval dt=0.1 differs from synth_00's dt=0.5"),
+    ("nan-in-q", lambda ds: _demo0(ds, q=np.where(np.arange(ds.demos[0].n_samples)[:, None] == 2, np.nan,
+                                                  ds.demos[0].q)),
+     r"demonstration 'synth_00': key 'q' holds NaN or infinite values \(first at index \[2, 0\]\)"),
+    ("task-dt", lambda ds: replace(ds, task=replace(ds.task, dt=0.02)),
+     r"the DemoSet's task: dt=0.02 differs from the demonstrations' sampling interval dt=0.1"),
+    ("joint-names", lambda ds: replace(ds, joint_names=tuple(f"j{i}" for i in range(7))),
+     r"the DemoSet: unknown joint name\(s\) \['j0'"),
+    ("no-demos", lambda ds: replace(ds, demos=()), r"the DemoSet: no demonstrations"),
+]
+
+
+@pytest.mark.parametrize("change,match", [f[1:] for f in FIT_INPUTS], ids=[f[0] for f in FIT_INPUTS])
+def test_fit_checks_a_set_built_in_python_as_load_demos_checks_files(synth, kin, change, match):
+    """Each was fitted without a word, or failed in numpy or the DTW, when the set never went
+    through load_demos (built in Python, or lfd.io.recordings)."""
+    from lfd.learning.demos import DemoFormatError
+    with pytest.raises(DemoFormatError, match=match):
+        fit(change(synth[0]), kin, FitConfig(time_steps=T_STEPS, restarts=1), workers=1)
+
+
+def test_fit_refuses_the_kinematics_of_another_robot_and_builds_the_sets_own_without_one(synth, kin):
+    from lfd.learning.demos import DemoFormatError
+    from lfd.robot.robots import PANDA
+    ds, _ = synth
+    with pytest.raises(DemoFormatError, match=r"the DemoSet: the kinematic model \(kin\) is of joints "
+                                              r"\['panda_joint1'.*not of the demonstrations' robot 'baxter_left'"):
+        fit(ds, KinematicModel.from_spec(PANDA), FitConfig(time_steps=T_STEPS, restarts=1), workers=1)
+    cfg = FitConfig(time_steps=T_STEPS, restarts=1, solver=SolverSettings(max_em_iters=2, tool_grid=2))
+    own = fit(ds, None, cfg, workers=1)  # was an AttributeError in em.py
+    assert own.final_loss == fit(ds, kin, cfg, workers=1).final_loss
 
 
 def test_config_counts_are_whole_numbers_and_other_settings_numbers():

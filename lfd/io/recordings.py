@@ -42,10 +42,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from lfd.errors import UserInputError
-from lfd.learning.demo_checks import far_landmark, jumping_landmark, unusable_demos
+from lfd.learning.demo_checks import far_landmark, jumping_landmark, other_task_dt, unusable_demos
 from lfd.learning.demos import LIMIT_TOLERANCE, Demonstration, DemoSet
 from lfd.learning.tasks import TaskSpec
 from lfd.robot.robots import RobotSpec
+from lfd.robot.se3 import not_rigid
 
 __all__ = ["LANDMARK_COLUMNS", "QUAT_TOLERANCE", "JointColumns", "RecordingError", "find_recordings",
            "import_recordings"]
@@ -68,6 +69,11 @@ class JointColumns:
     joints: dict = field(default_factory=dict)
     degrees: bool = False
 
+    def __post_init__(self):  # degrees="false" (a string) was read as True
+        if not isinstance(self.degrees, (bool, np.bool_)):
+            raise RecordingError(f"JointColumns: 'degrees' must be true or false, got {self.degrees!r}")
+        object.__setattr__(self, "degrees", bool(self.degrees))
+
     @classmethod
     def load(cls, path: str | Path) -> JointColumns:
         """A mapping file: ``{"time": "t", "joints": {"left_s0": "j0", ...}, "degrees": false}``."""
@@ -75,13 +81,11 @@ class JointColumns:
             d = json.loads(Path(path).read_text())
             if not isinstance(d, dict) or not set(d) <= {"time", "joints", "degrees"}:
                 raise ValueError("expected an object with the keys time, joints, degrees")
-            if not isinstance(d.get("degrees", False), bool):  # "false" (a string) read as True
-                raise ValueError(f"'degrees' must be true or false, got {d['degrees']!r}")  # noqa: TRY004 (a user's file)
             names = [d.get("time", "time"), *dict(d.get("joints", {})).values()]
             if not all(isinstance(c, str) and c for c in names):  # None was looked up as column 'None'
                 raise ValueError(f"column names must be non-empty strings, got {names!r}")
             return cls(time=str(d.get("time", "time")), joints={str(k): str(v) for k, v in d.get("joints", {}).items()},
-                       degrees=bool(d.get("degrees", False)))
+                       degrees=d.get("degrees", False))
         except (OSError, ValueError, TypeError, AttributeError) as e:
             raise RecordingError(f"{path}: not a joint-column mapping ({e})") from e
 
@@ -304,18 +308,36 @@ def _trim(q: np.ndarray, tolerance: float) -> slice | None:
     return slice(first, last + 1) if last > first else None
 
 
+def _frame(T_base_frame) -> np.ndarray:
+    """``T_base_frame`` as a rigid ``(4, 4)`` float array (a scaled rotation scaled every landmark's
+    position), else ``RecordingError``."""
+    try:
+        T = np.asarray(T_base_frame, dtype=float)
+    except (ValueError, TypeError):
+        T = None
+    if T is None or T.shape != (4, 4) or not np.isfinite(T).all() or bool(not_rigid(T)):
+        raise RecordingError(f"T_base_frame must be a rigid transform, a finite (4, 4) matrix with a rotation "
+                             f"and [0, 0, 0, 1] as its last row, got {T_base_frame!r}")
+    return T
+
+
 def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: TaskSpec | None = None,
                       columns: JointColumns | None = None, T_base_frame=None, max_gap: float = 0.5,
                       trim: float = 0.0) -> tuple[DemoSet, list[dict]]:
     """Every recording under ``root`` (``find_recordings``) as one ``DemoSet`` sampled at ``rate``
     Hz, and a report per demonstration (its samples before and after, the seconds trimmed, its
     landmarks held still or tracked). ``T_base_frame (4, 4)``: the landmark CSVs' frame in the
-    robot's base frame (default: they are in the base frame). ``RecordingError`` on bad input."""
+    robot's base frame, a rigid transform (default: they are in the base frame). ``task``: the
+    set's task, whose ``dt`` must be the samples' ``1 / rate``. ``RecordingError`` on bad input."""
     if not (math.isfinite(rate) and rate > 0) or not max_gap > 0 or not trim >= 0:
         raise RecordingError(f"rate and max_gap must be positive and trim >= 0, got {rate}, {max_gap}, {trim}")
+    why = other_task_dt(task.dt, 1.0 / rate) if task is not None else None
+    if why:  # the model would plan at task.dt with steps learned from samples 1 / rate apart
+        raise RecordingError(f"task {task.name!r}: {why}; at rate={rate:g} Hz the samples are "  # type: ignore[union-attr]
+                             f"{1.0 / rate:g} s apart")
     columns = columns or JointColumns()
     columns.check(robot)
-    T_base_frame = np.eye(4) if T_base_frame is None else np.asarray(T_base_frame, dtype=float)
+    T_base_frame = np.eye(4) if T_base_frame is None else _frame(T_base_frame)
     lower, upper = _limits(robot)
     demos, report, names = [], [], None
     for name, jpath, lpath in find_recordings(root):

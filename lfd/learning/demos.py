@@ -34,6 +34,7 @@ of joint angles into this format.
 from __future__ import annotations
 
 import json
+import math
 import zipfile
 import zlib
 from dataclasses import dataclass, replace
@@ -42,8 +43,8 @@ from pathlib import Path
 import numpy as np
 
 from lfd.errors import UserInputError
-from lfd.learning.demo_checks import far_landmark, jumping_landmark, unusable_demos
-from lfd.learning.tasks import MAX_DT, TaskSpec, check_point, check_stride
+from lfd.learning.demo_checks import far_landmark, jumping_landmark, other_task_dt, unusable_demos
+from lfd.learning.tasks import MAX_DT, TaskSpec, check_point, check_stride, check_whole
 from lfd.robot.robots import RobotSpec
 from lfd.robot.se3 import not_rigid, rigid_errors
 
@@ -52,6 +53,8 @@ __all__ = [
     "DemoFormatError",
     "DemoSet",
     "Demonstration",
+    "check_demonstration",
+    "check_demoset",
     "demo_files",
     "far_landmark",
     "jumping_landmark",
@@ -79,6 +82,10 @@ class Demonstration:
     dt: float
     landmarks: np.ndarray
     name: str = ""
+
+    def __post_init__(self):  # a list of rows had no .shape: n_samples raised AttributeError
+        object.__setattr__(self, "q", np.asarray(self.q))
+        object.__setattr__(self, "landmarks", np.asarray(self.landmarks))
 
     @property
     def n_samples(self) -> int:
@@ -138,6 +145,9 @@ class DemoSet:
 def save_demonstration(path: str | Path, demo: Demonstration, joint_names, landmark_names,
                        robot: RobotSpec) -> Path:
     """Write one demonstration as an ``.npz`` of the documented format."""
+    for what, names in (("joint_names", joint_names), ("landmark_names", landmark_names)):
+        if isinstance(names, (str, bytes)):  # list("bowl") would be 4 one-letter names
+            raise ValueError(f"{what} must be a list of names, got the string {names!r}")  # noqa: TRY004 (a user's value)
     path = Path(path)
     np.savez(path, q=np.asarray(demo.q, dtype=np.float64), dt=np.float64(demo.dt),
              joint_names=np.array(list(joint_names), dtype=str),
@@ -251,6 +261,24 @@ def _landmark_poses(where: str, value, names: tuple, n_samples: int, dt: float) 
     return poses
 
 
+def check_demonstration(where: str, demo: Demonstration, joint_names, landmark_names) -> Demonstration:
+    """``demo`` checked on its own against its set's names (``where`` starts each message): ``q``
+    finite ``(S, d)``, one column per joint name; ``dt`` in ``(0, MAX_DT]``; its landmark poses
+    as ``_landmark_poses`` checks them. Returned with float64 arrays. The checks of a file's
+    arrays (``load_demos``) and of a ``DemoSet`` built in Python (``check_demoset``)."""
+    q = _as_float(where, "q", np.asarray(demo.q), 2)
+    if q.shape[1] != len(joint_names):
+        raise _fail(where, f"key 'q' has {q.shape[1]} columns but 'joint_names' names {len(joint_names)} "
+                           f"joints")
+    dt = _as_float(where, "dt", np.asarray(demo.dt), 0)
+    if not 0 < dt <= MAX_DT:
+        hint = " (milliseconds given as seconds?)" if dt > MAX_DT else ""
+        raise _fail(where, f"key 'dt' (sampling interval, seconds) must be positive and at most {MAX_DT:g}, "
+                           f"got {float(dt)}{hint}")
+    poses = _landmark_poses(where, np.asarray(demo.landmarks), tuple(landmark_names), len(q), float(dt))
+    return Demonstration(q=q, dt=float(dt), landmarks=poses, name=demo.name)
+
+
 def _check_one(path: Path, raw: dict) -> tuple[Demonstration, tuple, tuple, RobotSpec]:
     where = str(path)
     try:
@@ -260,17 +288,8 @@ def _check_one(path: Path, raw: dict) -> tuple[Demonstration, tuple, tuple, Robo
                            f"joint_names): {e}") from e
     joint_names = _as_names(where, "joint_names", raw["joint_names"])
     landmark_names = _as_names(where, "landmark_names", raw["landmark_names"])
-    q = _as_float(where, "q", raw["q"], 2)
-    if q.shape[1] != len(joint_names):
-        raise _fail(where, f"key 'q' has {q.shape[1]} columns but 'joint_names' names {len(joint_names)} "
-                           f"joints")
-    dt = _as_float(where, "dt", raw["dt"], 0)
-    if not 0 < dt <= MAX_DT:
-        hint = " (milliseconds given as seconds?)" if dt > MAX_DT else ""
-        raise _fail(where, f"key 'dt' (sampling interval, seconds) must be positive and at most {MAX_DT:g}, "
-                           f"got {float(dt)}{hint}")
-    poses = _landmark_poses(where, raw["landmark_poses"], landmark_names, len(q), float(dt))
-    demo = Demonstration(q=q, dt=float(dt), landmarks=poses, name=path.stem)
+    demo = check_demonstration(where, Demonstration(q=raw["q"], dt=raw["dt"], landmarks=raw["landmark_poses"],
+                                                    name=path.stem), joint_names, landmark_names)
     return demo, joint_names, landmark_names, robot
 
 
@@ -312,6 +331,85 @@ def _check_limits(where: str, q: np.ndarray, joint_names, lower, upper, tol: flo
                            f"limits [{lower[j]:.4f}, {upper[j]:.4f}] (tolerance {tol} rad)")
 
 
+def _same_dt(where: str, dt: float, first: str, dt0: float) -> None:
+    if abs(dt - dt0) > 1e-9 * max(1.0, dt0):
+        raise _fail(where, f"sampling interval dt={dt} differs from {first}'s dt={dt0}")
+
+
+def _check_tolerance(limit_tolerance) -> float:
+    """``limit_tolerance`` as a float if it is a finite angle >= 0 (NaN turned the limit check off)."""
+    if isinstance(limit_tolerance, bool) or not isinstance(limit_tolerance, (int, float, np.integer, np.floating)) \
+            or not (math.isfinite(limit_tolerance) and limit_tolerance >= 0):
+        raise ValueError(f"limit_tolerance must be a finite angle >= 0 (rad), got {limit_tolerance!r}")
+    return float(limit_tolerance)
+
+
+def _check_set(demos, wheres: list[str], joint_names: tuple, robot: RobotSpec, task: TaskSpec | None,
+               set_where: str, names_where: str, task_where: str, kin, limit_tolerance: float):
+    """What a set's demonstrations, each checked on its own and with one ``dt``, must satisfy
+    together with their robot and task: the task's ``dt`` is theirs, the joint names are the
+    robot's in its order, ``kin`` (built from ``robot`` when None) is the robot's, every sample
+    is within its joint limits (``limit_tolerance`` rad), and they can be learned from
+    (``unusable_demos``). Returns ``kin``. ``load_demos`` and ``check_demoset``; ``wheres`` name
+    the demonstrations in messages, ``set_where`` the set, ``names_where`` its joint names and
+    ``task_where`` its task."""
+    why = other_task_dt(task.dt, demos[0].dt) if task is not None else None
+    if why:
+        raise DemoFormatError(f"{task_where}: {why}")
+    unknown = [n for n in joint_names if n not in robot.joint_names]
+    if unknown:
+        raise _fail(names_where, f"unknown joint name(s) {unknown}; robot {robot.name!r} has "
+                               f"{list(robot.joint_names)}")
+    if joint_names != robot.joint_names:
+        raise _fail(names_where, f"joint_names must be {list(robot.joint_names)} in this order, got "
+                               f"{list(joint_names)}")
+    if kin is None:
+        from lfd.robot.kinematics import KinematicModel, KinematicsError
+        try:
+            kin = KinematicModel.from_spec(robot)
+        except KinematicsError as e:
+            raise DemoFormatError(f"{names_where}: robot {robot.name!r} cannot be loaded: {e}") from e
+    elif tuple(kin.joint_names) != robot.joint_names or kin.end_link != robot.end_link:
+        raise DemoFormatError(f"{set_where}: the kinematic model (kin) is of joints {list(kin.joint_names)} to "
+                              f"{kin.end_link!r}, not of the demonstrations' robot {robot.name!r} (joints "
+                              f"{list(robot.joint_names)} to {robot.end_link!r})")
+    lower, upper = kin.lower.cpu().numpy(), kin.upper.cpu().numpy()
+    for where, d in zip(wheres, demos):
+        _check_limits(where, d.q, joint_names, lower, upper, limit_tolerance)
+    why = unusable_demos([d.q for d in demos], [d.name for d in demos])
+    if why:
+        raise DemoFormatError(f"{set_where}: {why}")
+    return kin
+
+
+def check_demoset(demoset: DemoSet, kin=None, limit_tolerance: float = LIMIT_TOLERANCE) -> tuple[DemoSet, object]:
+    """A ``DemoSet`` however it was made (built in Python, ``lfd.io.recordings``) checked as
+    ``load_demos`` checks a set's files: each demonstration (``check_demonstration``), one ``dt``,
+    the task, the robot and ``kin`` (``_check_set``). Returns the set with float64 arrays and
+    ``kin`` (built from ``demoset.robot`` when None); ``DemoFormatError`` naming the
+    demonstration otherwise. ``lfd.learning.learn.fit`` calls it on what it is given."""
+    limit_tolerance = _check_tolerance(limit_tolerance)
+    if not isinstance(demoset, DemoSet):
+        raise TypeError(f"expected a DemoSet (lfd.learning.demos), got {type(demoset).__name__}")
+    if not isinstance(demoset.robot, RobotSpec):
+        raise DemoFormatError(f"the DemoSet: robot must be a RobotSpec, got {type(demoset.robot).__name__}")
+    if isinstance(demoset.demos, (str, bytes)) or not len(demoset.demos):
+        raise DemoFormatError("the DemoSet: no demonstrations")
+    joint_names = _as_names("the DemoSet", "joint_names", np.asarray(demoset.joint_names))
+    landmark_names = _as_names("the DemoSet", "landmark_names", np.asarray(demoset.landmark_names))
+    wheres = [f"demonstration {d.name!r}" if getattr(d, "name", "") else f"demonstration {i}"
+              for i, d in enumerate(demoset.demos)]
+    demos: list[Demonstration] = []
+    for where, d in zip(wheres, demoset.demos):
+        demo = check_demonstration(where, d, joint_names, landmark_names)
+        if demos:
+            _same_dt(where, demo.dt, demos[0].name or "demonstration 0", demos[0].dt)
+        demos.append(demo)
+    kin = _check_set(demos, wheres, joint_names, demoset.robot, demoset.task, "the DemoSet", "the DemoSet",
+                     "the DemoSet's task", kin, limit_tolerance)
+    return replace(demoset, demos=tuple(demos), joint_names=joint_names, landmark_names=landmark_names), kin
+
+
 def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
                limit_tolerance: float = LIMIT_TOLERANCE) -> DemoSet:
     """Load and validate a demonstration set.
@@ -329,33 +427,16 @@ def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
     DemoFormatError
         naming the file, the demonstration and the key for each problem.
     """
+    limit_tolerance = _check_tolerance(limit_tolerance)
+    if time_steps is not None:
+        check_whole(time_steps, "time_steps", 2)
     files, root = _demo_files(Path(path))
     task, ground_truth = _side_files(root)
     if time_steps is None:
         time_steps = task.time_steps if task is not None else 24
-    demos, (_, joint_names, landmark_names, robot, dt0) = _read_consistent(files, time_steps)
-    if task is not None and abs(task.dt - dt0) > 1e-9 * max(1.0, dt0):
-        raise DemoFormatError(f"{root / 'task.json'}: dt={task.dt} differs from the demonstrations' "
-                              f"sampling interval dt={dt0} (the model's dt comes from task.json)")
-    unknown = [n for n in joint_names if n not in robot.joint_names]
-    if unknown:
-        raise _fail(str(files[0]), f"unknown joint name(s) {unknown}; robot {robot.name!r} has "
-                                   f"{list(robot.joint_names)}")
-    if joint_names != robot.joint_names:
-        raise _fail(str(files[0]), f"joint_names must be {list(robot.joint_names)} in this order, got "
-                                   f"{list(joint_names)}")
-    if kin is None:
-        from lfd.robot.kinematics import KinematicModel, KinematicsError
-        try:
-            kin = KinematicModel.from_spec(robot)
-        except KinematicsError as e:
-            raise DemoFormatError(f"{files[0]}: robot {robot.name!r} cannot be loaded: {e}") from e
-    lower, upper = kin.lower.cpu().numpy(), kin.upper.cpu().numpy()
-    for f, d in zip(files, demos):
-        _check_limits(str(f), d.q, joint_names, lower, upper, limit_tolerance)
-    why = unusable_demos([d.q for d in demos], [d.name for d in demos])
-    if why:
-        raise DemoFormatError(f"{root}: {why}")
+    demos, (_, joint_names, landmark_names, robot, _) = _read_consistent(files, time_steps)
+    _check_set(demos, [str(f) for f in files], joint_names, robot, task, str(root), str(files[0]),
+               str(root / "task.json"), kin, limit_tolerance)
     return DemoSet(demos=tuple(demos), joint_names=joint_names, landmark_names=landmark_names,
                    robot=robot, task=task, ground_truth=ground_truth, root=root)
 
@@ -427,8 +508,7 @@ def _read_consistent(files: list[Path], time_steps: int):
             if landmark_names != l0:
                 raise _fail(str(f), f"landmark_names {list(landmark_names)} (Z={len(landmark_names)}) differ "
                                     f"from {f0.name}'s {list(l0)} (Z={len(l0)})")
-            if abs(demo.dt - dt0) > 1e-9 * max(1.0, dt0):
-                raise _fail(str(f), f"sampling interval dt={demo.dt} differs from {f0.name}'s dt={dt0}")
+            _same_dt(str(f), demo.dt, f0.name, dt0)
         if demo.n_samples < time_steps:
             raise _fail(str(f), f"only {demo.n_samples} samples, fewer than the {time_steps} time steps of "
                                 f"the task model")

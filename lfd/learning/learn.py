@@ -45,6 +45,7 @@ import numpy as np
 import torch
 
 from lfd.learning.checkpoint import CheckpointError, FitProgress, config_record, demos_fingerprint
+from lfd.learning.demos import check_demoset
 from lfd.learning.dtw import (
     dwell_limits,
     effective_demos,
@@ -111,8 +112,10 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
 
     Parameters
     ----------
-    demoset : lfd.learning.demos.DemoSet (its ``ground_truth`` is never read).
-    kin : lfd.robot.kinematics.KinematicModel of ``demoset.robot`` (moved to the config's dtype/device).
+    demoset : lfd.learning.demos.DemoSet (its ``ground_truth`` is never read), checked as
+        ``load_demos`` checks a set's files (``lfd.learning.demos.check_demoset``), however it was made.
+    kin : lfd.robot.kinematics.KinematicModel of ``demoset.robot`` (moved to the config's dtype/device);
+        None: built from ``demoset.robot``.
     config : FitConfig (defaults when None).
     callback : called as ``callback(event: dict)`` after every EM iteration with keys
         ``stage`` ('restart' | 'refit'), ``restart``, ``iteration``, ``loss``, ``tool``, ``env``
@@ -134,6 +137,8 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
 
     Raises
     ------
+    lfd.learning.demos.DemoFormatError (a ``lfd.errors.UserInputError``)
+        demonstrations that ``load_demos`` would refuse, or a ``kin`` of another robot.
     FitError (a ``lfd.errors.UserInputError``)
         demonstrations too short for the time steps, a mode that needs ``demoset.task``
         without one, every restart failing, a refit that failed, a non-finite model.
@@ -144,6 +149,7 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
     """
     cfg = config or FitConfig()
     dtype, device = _resolve(cfg)
+    demoset, kin = check_demoset(demoset, kin)
     if resume is not None:
         why = resume.mismatch(config_record(cfg), demos_fingerprint(demoset))
         where = resume.source or "the checkpoint"
