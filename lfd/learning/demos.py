@@ -44,7 +44,7 @@ import numpy as np
 
 from lfd.errors import UserInputError
 from lfd.learning.demo_checks import far_landmark, jumping_landmark, other_task_dt, unusable_demos
-from lfd.learning.tasks import MAX_DT, TaskSpec, check_point, check_stride, check_whole
+from lfd.learning.tasks import MAX_DT, TaskSpec, check_point, check_stride, check_whole, is_real
 from lfd.robot.robots import RobotSpec
 from lfd.robot.se3 import not_rigid, rigid_errors
 
@@ -338,8 +338,7 @@ def _same_dt(where: str, dt: float, first: str, dt0: float) -> None:
 
 def _check_tolerance(limit_tolerance) -> float:
     """``limit_tolerance`` as a float if it is a finite angle >= 0 (NaN turned the limit check off)."""
-    if isinstance(limit_tolerance, bool) or not isinstance(limit_tolerance, (int, float, np.integer, np.floating)) \
-            or not (math.isfinite(limit_tolerance) and limit_tolerance >= 0):
+    if not (is_real(limit_tolerance) and math.isfinite(limit_tolerance) and limit_tolerance >= 0):
         raise ValueError(f"limit_tolerance must be a finite angle >= 0 (rad), got {limit_tolerance!r}")
     return float(limit_tolerance)
 

@@ -6,7 +6,6 @@
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -15,7 +14,7 @@ import torch
 
 from lfd.errors import UserInputError
 from lfd.learning.model import COVARIANCES, FEATURE_SETS, TaskModel
-from lfd.learning.tasks import check_stride, check_whole
+from lfd.learning.tasks import check_stride, check_whole, is_real
 
 __all__ = ["DTYPES", "ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitError", "FitResult",
            "SolverSettings"]
@@ -39,7 +38,7 @@ def _check_numbers(obj, names) -> None:
     from a comparison, naming no field."""
     for name in names:
         value = getattr(obj, name)
-        if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)):
+        if value is not None and not is_real(value):
             raise ValueError(f"{type(obj).__name__}.{name} must be a number, got {value!r}")
 
 

@@ -11,13 +11,13 @@ robot's (world) frame instead, like the start above the source container.
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from lfd.learning.demos import Demonstration, DemoSet
+from lfd.learning.tasks import is_real
 from lfd.robot.robots import BAXTER_LEFT, PANDA, RobotSpec
 
 __all__ = ["SyntheticTruth", "make_synthetic", "random_rotation"]
@@ -119,7 +119,7 @@ def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5,
     """
     if dt is None:
         dt = task.dt if task is not None else 0.1
-    if isinstance(dt, bool) or not (isinstance(dt, numbers.Real) and math.isfinite(dt) and float(dt) > 0):
+    if not (is_real(dt) and math.isfinite(dt) and float(dt) > 0):
         raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
     rng = np.random.default_rng(seed)
     T = time_steps

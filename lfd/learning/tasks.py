@@ -20,7 +20,8 @@ from pathlib import Path
 TASK_VECTORS = {"paper": 1, "attitude": 3}
 FEATURE_SETS = tuple(TASK_VECTORS)
 
-__all__ = ["FEATURE_SETS", "POUR", "POWDER", "TASKS", "TASK_NAME", "TASK_VECTORS", "TaskSpec", "check_point", "check_stride", "check_whole", "task_from_name"]
+__all__ = ["FEATURE_SETS", "POUR", "POWDER", "TASKS", "TASK_NAME", "TASK_VECTORS", "TaskSpec", "check_point", "check_stride", "check_whole",
+           "is_real", "task_from_name"]
 
 
 TASK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")  # a task's name is also a folder name (./runs/<task>)
@@ -35,6 +36,11 @@ RETIRED_KEYS = frozenset({"tool_velocity"})
 MAX_TOOL_REACH = 2.0  # m from the gripper's origin: a hand-picked tool point farther is in other units
 
 
+def is_real(value) -> bool:
+    """A real number (a Python or NumPy int or float), not a bool nor a string."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
 def check_whole(value, what: str, minimum: int = 1) -> int:
     """``value`` as an ``int`` if it is a whole number >= ``minimum`` (a Python or NumPy integer,
     not a bool nor a float), else a ``ValueError`` naming ``what``."""
@@ -47,7 +53,7 @@ def check_point(value, what: str) -> tuple[float, float, float]:
     """``value`` as 3 floats if it is 3 finite real numbers (a point in metres), else a
     ``ValueError`` naming ``what``."""
     if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 3 \
-            or not all(isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
+            or not all(is_real(x) and math.isfinite(x)
                        for x in value):
         raise ValueError(f"{what} needs 3 finite numbers (metres), got {value!r}")
     return (float(value[0]), float(value[1]), float(value[2]))
@@ -94,8 +100,7 @@ class TaskSpec:
     def __post_init__(self):
         if not isinstance(self.name, str) or not TASK_NAME.fullmatch(self.name):  # 'my task' no --task could name
             raise ValueError(f"TaskSpec.name must be a name of letters, digits, '_' and '-', got {self.name!r}")
-        if isinstance(self.dt, bool) or not isinstance(self.dt, numbers.Real) \
-                or not (math.isfinite(self.dt) and self.dt > 0):
+        if not (is_real(self.dt) and math.isfinite(self.dt) and self.dt > 0):
             raise ValueError(f"TaskSpec.dt must be a finite positive number of seconds, got {self.dt!r}")
         if self.dt > MAX_STEP:
             raise ValueError(f"TaskSpec.dt is the time step in seconds, at most {MAX_STEP:g}; got {self.dt!r}")

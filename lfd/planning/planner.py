@@ -27,12 +27,12 @@ from __future__ import annotations
 
 import itertools
 import math
-import numbers
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from lfd.learning.tasks import is_real
 from lfd.planning.edgestore import BLOCKED, FREE, UNKNOWN, EdgeStore
 from lfd.planning.roadmap import Roadmap, k_prm_star
 from lfd.planning.stepcost import CostError, StepCost
@@ -50,7 +50,7 @@ STALE_EXPANSIONS = 300
 def time_step(t, T: int) -> int:
     """``t`` as an ``int`` if it is a time step of a ``T``-step task (a whole number in ``[0, T)``,
     a whole float too), else a ``ValueError`` (``None``, NaN and ``True`` were TypeErrors or taken)."""
-    value = float(t) if isinstance(t, numbers.Real) and not isinstance(t, bool) else math.nan
+    value = float(t) if is_real(t) else math.nan
     if not (math.isfinite(value) and value == int(value) and 0 <= value < T):
         raise ValueError(f"Expected t_current an integer in [0, {T - 1}], got {t!r}")
     return int(value)

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass, field
 
-from lfd.learning.tasks import check_whole
+from lfd.learning.tasks import check_whole, is_real
 from lfd.planning.planner import PlannerSettings
 from lfd.planning.roadmap import RoadmapSettings
 
@@ -75,12 +74,12 @@ class TaskPlannerSettings:
             if value is not None or name in ("min_free_per_step", "extra_posture_rounds", "seed"):
                 object.__setattr__(self, name, check_whole(value, f"TaskPlannerSettings.{name}", least))
         for name in ("bias_fraction", "region_fraction", "posture_share"):
-            if not _real(getattr(self, name)) or not 0.0 <= getattr(self, name) <= 1.0:
+            if not is_real(getattr(self, name)) or not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"TaskPlannerSettings.{name} must be in [0, 1], got {getattr(self, name)!r}")
         for name, positive in (("region_inflation", True), ("regrow_distance", True), ("posture_spread", False),
                                ("object_radius", False)):
             value = getattr(self, name)
-            if not _real(value) or not math.isfinite(value) or value < 0 or (positive and value == 0):
+            if not is_real(value) or not math.isfinite(value) or value < 0 or (positive and value == 0):
                 raise ValueError(f"TaskPlannerSettings.{name} must be a finite number {'> 0' if positive else '>= 0'}, "
                                  f"got {value!r}")
         if self.max_vertices is not None and self.max_vertices < max(2, self.n_vertices or 2):
@@ -93,7 +92,3 @@ class TaskPlannerSettings:
                 raise TypeError(f"TaskPlannerSettings.{name} must be a {kind.__name__}, got "
                                 f"{type(getattr(self, name)).__name__}")
 
-
-def _real(value) -> bool:
-    """A real number, not a bool (nor a string)."""
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
