@@ -10,7 +10,7 @@ from collections.abc import Sequence
 import numpy as np
 
 __all__ = ["MAX_LANDMARK_DISTANCE", "MAX_LANDMARK_SPEED", "MIN_JOINT_TRAVEL", "far_landmark", "jumping_landmark",
-           "other_task_dt", "unusable_demos"]
+           "other_task_dt", "same_interval", "unusable_demos"]
 
 MAX_LANDMARK_DISTANCE = 20.0  # m from the robot's base: a landmark farther was given in other units
 MAX_LANDMARK_SPEED = 5.0  # m/s: a tracked landmark faster than this between samples is a tracking glitch
@@ -46,11 +46,16 @@ def jumping_landmark(poses: np.ndarray, names: Sequence[str], dt: float | np.nda
             f"another marker read as this landmark?)")
 
 
+def same_interval(dt: float, dt0: float) -> bool:
+    """Whether two sampling intervals (s) are the same, but for rounding."""
+    return abs(dt - dt0) <= 1e-9 * max(1.0, dt0)
+
+
 def other_task_dt(task_dt: float, dt: float) -> str | None:
     """Why a task whose ``dt`` is ``task_dt`` cannot be the task of demonstrations sampled every
     ``dt`` s (a learned model's time step is its task's ``dt``, the samples' own interval), or
     ``None``."""
-    if abs(task_dt - dt) <= 1e-9 * max(1.0, dt):
+    if same_interval(task_dt, dt):
         return None
     return (f"dt={task_dt} differs from the demonstrations' sampling interval dt={dt} (the model's dt comes "
             f"from the task)")

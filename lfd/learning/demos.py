@@ -43,8 +43,8 @@ from pathlib import Path
 import numpy as np
 
 from lfd.errors import UserInputError
-from lfd.learning.demo_checks import far_landmark, jumping_landmark, other_task_dt, unusable_demos
-from lfd.learning.tasks import MAX_DT, TaskSpec, check_point, check_stride, check_whole, is_real
+from lfd.learning.demo_checks import far_landmark, jumping_landmark, other_task_dt, same_interval, unusable_demos
+from lfd.learning.tasks import MAX_DT, TaskSpec, check_names, check_point, check_stride, check_whole, is_real
 from lfd.robot.robots import RobotSpec
 from lfd.robot.se3 import not_rigid, rigid_errors
 
@@ -145,9 +145,8 @@ class DemoSet:
 def save_demonstration(path: str | Path, demo: Demonstration, joint_names, landmark_names,
                        robot: RobotSpec) -> Path:
     """Write one demonstration as an ``.npz`` of the documented format."""
-    for what, names in (("joint_names", joint_names), ("landmark_names", landmark_names)):
-        if isinstance(names, (str, bytes)):  # list("bowl") would be 4 one-letter names
-            raise ValueError(f"{what} must be a list of names, got the string {names!r}")  # noqa: TRY004 (a user's value)
+    check_names(joint_names, "joint_names")
+    check_names(landmark_names, "landmark_names")
     path = Path(path)
     np.savez(path, q=np.asarray(demo.q, dtype=np.float64), dt=np.float64(demo.dt),
              joint_names=np.array(list(joint_names), dtype=str),
@@ -332,7 +331,7 @@ def _check_limits(where: str, q: np.ndarray, joint_names, lower, upper, tol: flo
 
 
 def _same_dt(where: str, dt: float, first: str, dt0: float) -> None:
-    if abs(dt - dt0) > 1e-9 * max(1.0, dt0):
+    if not same_interval(dt, dt0):
         raise _fail(where, f"sampling interval dt={dt} differs from {first}'s dt={dt0}")
 
 

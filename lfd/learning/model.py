@@ -37,7 +37,7 @@ import torch
 
 from lfd.errors import UserInputError
 from lfd.learning.dtw import OFFSETS
-from lfd.learning.tasks import FEATURE_SETS, TASK_VECTORS, TaskSpec
+from lfd.learning.tasks import FEATURE_SETS, TASK_VECTORS, TaskSpec, check_names
 from lfd.robot.robots import RobotSpec
 
 __all__ = [
@@ -194,9 +194,8 @@ class TaskModel:
                  kin=None, feature_set: str = "paper"):
         self.tool, self.env, self.mu = tool, env, mu
         self.sigma_inv, self.log_trans = sigma_inv, log_trans
-        for names in (landmark_names, all_landmark_names):  # tuple("bowl") would be 4 one-letter names
-            if isinstance(names, (str, bytes)):
-                raise ValueError(f"landmark names must be a list of names, got the string {names!r}")  # noqa: TRY004 (a user's file)
+        for names in (landmark_names, all_landmark_names):
+            check_names(names, "landmark names")
         self.landmark_names = tuple(landmark_names)
         self.all_landmark_names = tuple(all_landmark_names or landmark_names)
         self.robot, self.task = robot, task

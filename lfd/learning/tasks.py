@@ -20,8 +20,8 @@ from pathlib import Path
 TASK_VECTORS = {"paper": 1, "attitude": 3}
 FEATURE_SETS = tuple(TASK_VECTORS)
 
-__all__ = ["FEATURE_SETS", "POUR", "POWDER", "TASKS", "TASK_NAME", "TASK_VECTORS", "TaskSpec", "check_point", "check_stride", "check_whole",
-           "is_real", "task_from_name"]
+__all__ = ["FEATURE_SETS", "POUR", "POWDER", "TASKS", "TASK_NAME", "TASK_VECTORS", "TaskSpec", "check_names", "check_point",
+           "check_stride", "check_whole", "is_real", "task_from_name"]
 
 
 TASK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")  # a task's name is also a folder name (./runs/<task>)
@@ -39,6 +39,13 @@ MAX_TOOL_REACH = 2.0  # m from the gripper's origin: a hand-picked tool point fa
 def is_real(value) -> bool:
     """A real number (a Python or NumPy int or float), not a bool nor a string."""
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def check_names(value, what: str) -> None:
+    """A ``ValueError`` naming ``what`` when ``value``, which should hold several names, is one
+    string (``tuple("bowl")`` would be 4 one-letter names)."""
+    if isinstance(value, (str, bytes)):
+        raise ValueError(f"{what} must be a list of names, got the string {value!r}")  # noqa: TRY004 (a user's value)
 
 
 def check_whole(value, what: str, minimum: int = 1) -> int:
