@@ -1,6 +1,6 @@
 """The base of the library's errors for bad input that a user can fix.
 
-``lfd.learning.demos.DemoFormatError``, ``lfd.robot.kinematics.KinematicsError``, ``lfd.learning.model.ModelFormatError``
+``lfd.learning.demoset.DemoFormatError``, ``lfd.robot.kinematics.KinematicsError``, ``lfd.learning.model.ModelFormatError``
 and ``lfd.cli.UsageError`` derive from ``UserInputError``, so that the command-line tools
 (``lfd.cli.run_main``) turn any of them into one line and exit status 2 without importing the
 modules that raise them. A leaf module: it imports nothing from lfd.

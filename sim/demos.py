@@ -40,7 +40,8 @@ import numpy as np
 import torch
 
 from lfd.cli import ArgumentParser, UsageError, check_seed, path_arg, png_file, run_main, writable_dir
-from lfd.learning.demos import Demonstration, save_demonstration
+from lfd.learning.demos import save_demonstration
+from lfd.learning.demoset import Demonstration
 from lfd.learning.tasks import task_from_name
 from lfd.robot.ik import IKConfig, solve_ik
 from lfd.robot.kinematics import KinematicModel

@@ -47,7 +47,7 @@ LANDMARK_NAMES = ("bowl", "marker_1", "marker_2")
 
 def small_demoset(n: int = 2, samples: int = 30, seed: int = 0, ground_truth=None):
     """``n`` small valid demonstrations (random joints near a nominal pose, 3 landmarks)."""
-    from lfd.learning.demos import Demonstration, DemoSet
+    from lfd.learning.demoset import Demonstration, DemoSet
     from lfd.robot.robots import BAXTER_LEFT
     from lfd.learning.tasks import POWDER
 

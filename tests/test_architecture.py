@@ -51,7 +51,7 @@ def test_no_import_cycles():
 
 def test_user_errors_share_one_base():
     from lfd.cli import USER_ERRORS, UsageError
-    from lfd.learning.demos import DemoFormatError
+    from lfd.learning.demoset import DemoFormatError
     from lfd.errors import UserInputError
     from lfd.robot.kinematics import KinematicsError
     from lfd.learning.model import ModelFormatError

@@ -20,7 +20,9 @@ import numpy as np
 import pytest
 import torch
 
-from lfd.learning.demos import DemoFormatError, load_demos, save_demos
+from lfd.learning.demos import load_demos, save_demos
+
+from lfd.learning.demoset import DemoFormatError
 from lfd.learning.learn import FitConfig
 from lfd.learning.model import ModelFormatError, TaskModel
 from lfd.robot.robots import BAXTER_LEFT

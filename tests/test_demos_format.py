@@ -10,7 +10,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from lfd.learning.demos import DemoFormatError, DemoSet, load_demos, save_demos
+from lfd.learning.demos import load_demos, save_demos
+
+from lfd.learning.demoset import DemoFormatError, DemoSet
 from lfd.robot.robots import BAXTER_LEFT
 from lfd.learning.tasks import POWDER
 from helpers import entry_point, rewrite_npz, run_cli, small_demoset
@@ -322,7 +324,7 @@ def test_names_given_as_one_string_are_refused(tmp_path):
 
 def test_a_demonstration_holds_lists_as_arrays():
     """Demonstration(q=list).n_samples was an AttributeError."""
-    from lfd.learning.demos import Demonstration
+    from lfd.learning.demoset import Demonstration
     d = _demoset().demos[0]
     listed = Demonstration(q=d.q.tolist(), dt=d.dt, landmarks=d.landmarks.tolist())
     assert listed.n_samples == d.n_samples and isinstance(listed.landmarks, np.ndarray)

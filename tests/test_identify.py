@@ -12,7 +12,8 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from helpers import run_cli
-from lfd.learning.demos import Demonstration, DemoSet, save_demos
+from lfd.learning.demos import save_demos
+from lfd.learning.demoset import Demonstration, DemoSet
 from lfd.learning.learn import FitConfig, fit
 from lfd.learning.tasks import TaskSpec
 from lfd.robot.ik import IKConfig, solve_ik

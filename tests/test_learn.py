@@ -601,13 +601,13 @@ FIT_INPUTS = [
 def test_fit_checks_a_set_built_in_python_as_load_demos_checks_files(synth, kin, change, match):
     """Each was fitted without a word, or failed in numpy or the DTW, when the set never went
     through load_demos (built in Python, or lfd.io.recordings)."""
-    from lfd.learning.demos import DemoFormatError
+    from lfd.learning.demoset import DemoFormatError
     with pytest.raises(DemoFormatError, match=match):
         fit(change(synth[0]), kin, FitConfig(time_steps=T_STEPS, restarts=1), workers=1)
 
 
 def test_fit_refuses_the_kinematics_of_another_robot_and_builds_the_sets_own_without_one(synth, kin):
-    from lfd.learning.demos import DemoFormatError
+    from lfd.learning.demoset import DemoFormatError
     from lfd.robot.robots import PANDA
     ds, _ = synth
     with pytest.raises(DemoFormatError, match=r"the DemoSet: the kinematic model \(kin\) is of joints "

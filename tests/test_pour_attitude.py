@@ -15,7 +15,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from lfd.learning.demos import Demonstration, DemoSet
+from lfd.learning.demoset import Demonstration, DemoSet
 from lfd.learning.learn import FitConfig, fit
 from lfd.planning.task_planner import TaskPlanner, TaskPlannerSettings
 from lfd.robot.ik import IKConfig, solve_ik

@@ -21,7 +21,8 @@ import numpy as np
 import pytest
 
 from lfd.learning.checkpoint import FitProgress, save_checkpoint
-from lfd.learning.demos import DemoSet, save_demonstration, save_demos
+from lfd.learning.demos import save_demonstration, save_demos
+from lfd.learning.demoset import DemoSet
 from lfd.robot.robots import BAXTER_LEFT, RobotSpec
 from lfd.learning.tasks import POWDER
 from helpers import entry_point, rewrite_npz, run_cli, small_demoset, synthetic_demo_dir

@@ -42,8 +42,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from lfd.errors import UserInputError
-from lfd.learning.demo_checks import far_landmark, jumping_landmark, other_task_dt, unusable_demos
-from lfd.learning.demos import LIMIT_TOLERANCE, Demonstration, DemoSet
+from lfd.learning.demo_checks import LIMIT_TOLERANCE, far_landmark, jumping_landmark, other_task_dt, unusable_demos
+from lfd.learning.demoset import Demonstration, DemoSet
 from lfd.learning.tasks import TaskSpec
 from lfd.robot.robots import RobotSpec
 from lfd.robot.se3 import not_rigid

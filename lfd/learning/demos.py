@@ -34,112 +34,27 @@ of joint angles into this format.
 from __future__ import annotations
 
 import json
-import math
 import zipfile
 import zlib
-from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from lfd.errors import UserInputError
-from lfd.learning.demo_checks import far_landmark, jumping_landmark, other_task_dt, same_interval, unusable_demos
-from lfd.learning.tasks import MAX_DT, TaskSpec, check_names, check_point, check_stride, check_whole, is_real
+from lfd.learning.demo_checks import (
+    LIMIT_TOLERANCE,
+    check_demonstration,
+    check_limit_tolerance,
+    check_same_dt,
+    check_set,
+    names_from_array,
+)
+from lfd.learning.demoset import DemoFormatError, Demonstration, DemoSet
+from lfd.learning.tasks import TaskSpec, check_names, check_point, check_whole
 from lfd.robot.robots import RobotSpec
-from lfd.robot.se3 import not_rigid, rigid_errors
 
-__all__ = [
-    "REQUIRED_KEYS",
-    "DemoFormatError",
-    "DemoSet",
-    "Demonstration",
-    "check_demonstration",
-    "check_demoset",
-    "demo_files",
-    "far_landmark",
-    "jumping_landmark",
-    "load_demos",
-    "save_demonstration",
-    "save_demos",
-    "set_folder",
-    "unusable_demos",
-]
+__all__ = ["REQUIRED_KEYS", "demo_files", "load_demos", "save_demonstration", "save_demos", "set_folder"]
 
 REQUIRED_KEYS = ("q", "dt", "joint_names", "landmark_poses", "landmark_names", "robot")
-LIMIT_TOLERANCE = 0.02  # rad: recorded joints may sit this far outside the URDF limits
-
-
-class DemoFormatError(UserInputError):
-    """A demonstration set that cannot be used; the message says what, where, and what is expected."""
-
-
-@dataclass(frozen=True)
-class Demonstration:
-    """One demonstration: ``q: (S, d)``, sampling interval ``dt``, landmarks ``(Z, 4, 4)`` (held
-    still) or ``(S, Z, 4, 4)`` (tracked: the pose of each landmark at each sample)."""
-
-    q: np.ndarray
-    dt: float
-    landmarks: np.ndarray
-    name: str = ""
-
-    def __post_init__(self):  # a list of rows had no .shape: n_samples raised AttributeError
-        object.__setattr__(self, "q", np.asarray(self.q))
-        object.__setattr__(self, "landmarks", np.asarray(self.landmarks))
-
-    @property
-    def n_samples(self) -> int:
-        return int(self.q.shape[0])
-
-    @property
-    def duration(self) -> float:
-        return (self.n_samples - 1) * self.dt
-
-
-@dataclass(frozen=True)
-class DemoSet:
-    """Demonstrations that share a robot, joints, landmarks and sampling interval."""
-
-    demos: tuple[Demonstration, ...]
-    joint_names: tuple[str, ...]
-    landmark_names: tuple[str, ...]
-    robot: RobotSpec
-    task: TaskSpec | None = None
-    ground_truth: dict | None = None
-    root: Path | None = None
-
-    @property
-    def dt(self) -> float:
-        return self.demos[0].dt
-
-    @property
-    def n_observations(self) -> int:
-        return sum(d.n_samples for d in self.demos)
-
-    def subsample(self, stride: int) -> DemoSet:
-        """Every ``stride``-th sample of each demonstration, the first included, at ``stride * dt``
-        (up to ``stride - 1`` samples after the last kept one are dropped).
-
-        The paper's remedy for densely sampled demonstrations (Sec. VI-B: the 50 Hz pour "could have
-        been mitigated simply by subsampling during learning"). The task's ``dt`` is scaled with the
-        samples, so a model learned from the result plans and executes at the new interval.
-        The task's ``subsample`` (its default stride) becomes 1. ``stride == 1`` returns this set
-        unchanged.
-        """
-        stride = check_stride(stride, "subsample stride")
-        if stride == 1:
-            return self
-        demos = tuple(replace(d, q=d.q[::stride], dt=d.dt * stride,
-                              landmarks=d.landmarks[::stride] if np.ndim(d.landmarks) == 4 else d.landmarks)
-                      for d in self.demos)
-        # the task's own learning stride is spent: the thinned set is learned from every sample
-        task = replace(self.task, dt=self.task.dt * stride, subsample=1) if self.task is not None else None
-        return replace(self, demos=demos, task=task)
-
-    def landmark_index(self, name: str) -> int:
-        if name not in self.landmark_names:
-            raise ValueError(f"landmark {name!r} is not among {list(self.landmark_names)}")
-        return self.landmark_names.index(name)
 
 
 def save_demonstration(path: str | Path, demo: Demonstration, joint_names, landmark_names,
@@ -170,112 +85,35 @@ def save_demos(out_dir: str | Path, demoset: DemoSet) -> list[Path]:
     return paths
 
 
-def _fail(where: str, what: str) -> DemoFormatError:
-    return DemoFormatError(f"{where}: {what}")
-
-
 def _read_npz(path: Path) -> dict:
     where = str(path)
     if not path.is_file():  # a folder, a FIFO (opening it would block), a broken link
-        raise _fail(where, "not a regular file (a demonstration is an .npz file as numpy.savez writes)")
+        raise DemoFormatError.at(where, "not a regular file (a demonstration is an .npz file as numpy.savez writes)")
     if not zipfile.is_zipfile(path):
-        raise _fail(where, "not a readable .npz file (not a zip archive as numpy.savez writes)")
+        raise DemoFormatError.at(where, "not a readable .npz file (not a zip archive as numpy.savez writes)")
     try:
         with np.load(path, allow_pickle=False) as z:
             missing = [k for k in REQUIRED_KEYS if k not in z.files]
             if missing:
-                raise _fail(where, f"missing key(s) {missing}; a demonstration needs {list(REQUIRED_KEYS)}")
+                raise DemoFormatError.at(where, f"missing key(s) {missing}; a demonstration needs {list(REQUIRED_KEYS)}")
             raw = {k: z[k] for k in REQUIRED_KEYS}
     except DemoFormatError:
         raise
     except ValueError as e:
         if "pickle" in str(e):  # object arrays need pickle, which is refused
-            raise _fail(where, f"cannot read without pickle ({e}); store names as plain string arrays") from e
-        raise _fail(where, f"damaged .npz file: a member is not a readable array ({e})") from e
+            raise DemoFormatError.at(where, f"cannot read without pickle ({e}); store names as plain string arrays") from e
+        raise DemoFormatError.at(where, f"damaged .npz file: a member is not a readable array ({e})") from e
     except zlib.error as e:
-        raise _fail(where, f"damaged .npz file: a compressed member does not decompress ({e})") from e
+        raise DemoFormatError.at(where, f"damaged .npz file: a compressed member does not decompress ({e})") from e
     except MemoryError as e:  # numpy allocates what a member's header claims before reading it
-        raise _fail(where, f"damaged .npz file: a member's header claims an array too large to hold ({e})") from e
+        raise DemoFormatError.at(where, f"damaged .npz file: a member's header claims an array too large to hold ({e})") from e
     except (OSError, zipfile.BadZipFile, EOFError, KeyError, RuntimeError, NotImplementedError) as e:
         # RuntimeError: an encrypted member; NotImplementedError: a compression zipfile lacks
-        raise _fail(where, f"not a readable .npz file ({type(e).__name__}: {e})") from e
+        raise DemoFormatError.at(where, f"not a readable .npz file ({type(e).__name__}: {e})") from e
     for k, v in raw.items():
         if not isinstance(v, np.ndarray):  # numpy returns a member that is not .npy as raw bytes
-            raise _fail(where, f"key {k!r} is not a .npy array inside the archive (got {type(v).__name__})")
+            raise DemoFormatError.at(where, f"key {k!r} is not a .npy array inside the archive (got {type(v).__name__})")
     return raw
-
-
-def _as_float(where: str, key: str, value, ndim: int) -> np.ndarray:
-    if value.dtype.kind not in "fiu":
-        raise _fail(where, f"key {key!r} must be numeric, got dtype {value.dtype}")
-    value = value.astype(np.float64)
-    if value.ndim != ndim:
-        raise _fail(where, f"key {key!r} must have {ndim} dimension(s), got shape {value.shape}")
-    if not np.all(np.isfinite(value)):
-        bad = np.argwhere(~np.isfinite(value))[0].tolist()
-        raise _fail(where, f"key {key!r} holds NaN or infinite values (first at index {bad})")
-    return value
-
-
-def _as_names(where: str, key: str, value) -> tuple[str, ...]:
-    if value.dtype.kind not in "US" or value.ndim != 1:
-        raise _fail(where, f"key {key!r} must be a 1-D array of strings, got dtype {value.dtype} "
-                           f"and shape {value.shape}")
-    try:  # bytes (dtype S, e.g. written by Python 2 or h5py) are decoded, not shown as "b'...'"
-        names = tuple(v.decode("utf-8") if isinstance(v, bytes) else str(v) for v in value.tolist())
-    except UnicodeDecodeError as e:
-        raise _fail(where, f"key {key!r} holds bytes that are not UTF-8 text ({e})") from e
-    if len(set(names)) != len(names):
-        raise _fail(where, f"key {key!r} repeats a name: {list(names)}")
-    if not all(n.strip() for n in names):  # '  ' was a name no option could give
-        raise _fail(where, f"key {key!r} holds an empty name: {list(names)}")
-    return names
-
-
-def _landmark_poses(where: str, value, names: tuple, n_samples: int, dt: float) -> np.ndarray:
-    """``landmark_poses`` checked: ``(Z, 4, 4)`` or ``(S, Z, 4, 4)`` (tracked, one pose per sample
-    every ``dt`` s), finite and rigid, ``Z`` the names' count, metres in the base frame, tracked
-    ones moving as an object can (``lfd.learning.demo_checks``)."""
-    shape = f"({len(names)}, 4, 4) or, tracked, ({n_samples}, {len(names)}, 4, 4)"
-    if value.dtype.kind not in "fiu" or value.ndim not in (3, 4):
-        raise _fail(where, f"key 'landmark_poses' must be numeric of shape {shape} to match 'landmark_names' "
-                           f"and 'q', got dtype {value.dtype} and shape {value.shape}")
-    poses = _as_float(where, "landmark_poses", value, value.ndim)
-    if poses.shape[-3:] != (len(names), 4, 4) or (poses.ndim == 4 and poses.shape[0] != n_samples):
-        raise _fail(where, f"key 'landmark_poses' must have shape {shape} to match 'landmark_names' and 'q', "
-                           f"got {poses.shape}")
-    if poses.shape[-3] == 0:
-        raise _fail(where, "no sensed landmarks: 'landmark_poses' is empty")
-    bad = np.argwhere(not_rigid(poses))
-    if bad.size:
-        idx = tuple(int(x) for x in bad[0])
-        ortho, det, bottom = rigid_errors(poses[idx])
-        at = f" at sample {idx[0]}" if poses.ndim == 4 else ""
-        raise _fail(where, f"landmark {names[idx[-1]]!r} pose{at} is not a rigid transform "
-                           f"(|R^T R - I| = {ortho:.2g}, |det R - 1| = {det:.2g}, "
-                           f"bottom row error {bottom:.2g})")
-    why = far_landmark(poses, names) or jumping_landmark(poses, names, dt)
-    if why:
-        raise _fail(where, why)
-    return poses
-
-
-def check_demonstration(where: str, demo: Demonstration, joint_names, landmark_names) -> Demonstration:
-    """``demo`` checked on its own against its set's names (``where`` starts each message): ``q``
-    finite ``(S, d)``, one column per joint name; ``dt`` in ``(0, MAX_DT]``; its landmark poses
-    as ``_landmark_poses`` checks them. Returned with float64 arrays. The checks of a file's
-    arrays (``load_demos``) and of a ``DemoSet`` built in Python (``check_demoset``)."""
-    q = _as_float(where, "q", np.asarray(demo.q), 2)
-    if q.shape[1] != len(joint_names):
-        raise _fail(where, f"key 'q' has {q.shape[1]} columns but 'joint_names' names {len(joint_names)} "
-                           f"joints")
-    dt = _as_float(where, "dt", np.asarray(demo.dt), 0)
-    if not 0 < dt <= MAX_DT:
-        hint = " (milliseconds given as seconds?)" if dt > MAX_DT else ""
-        raise _fail(where, f"key 'dt' (sampling interval, seconds) must be positive and at most {MAX_DT:g}, "
-                           f"got {float(dt)}{hint}")
-    poses = _landmark_poses(where, np.asarray(demo.landmarks), tuple(landmark_names), len(q), float(dt))
-    return Demonstration(q=q, dt=float(dt), landmarks=poses, name=demo.name)
 
 
 def _check_one(path: Path, raw: dict) -> tuple[Demonstration, tuple, tuple, RobotSpec]:
@@ -283,10 +121,10 @@ def _check_one(path: Path, raw: dict) -> tuple[Demonstration, tuple, tuple, Robo
     try:
         robot = RobotSpec.from_dict(json.loads(str(raw["robot"])))
     except (ValueError, TypeError) as e:
-        raise _fail(where, f"key 'robot' must be the JSON of a RobotSpec (name, urdf, end_link, "
+        raise DemoFormatError.at(where, f"key 'robot' must be the JSON of a RobotSpec (name, urdf, end_link, "
                            f"joint_names): {e}") from e
-    joint_names = _as_names(where, "joint_names", raw["joint_names"])
-    landmark_names = _as_names(where, "landmark_names", raw["landmark_names"])
+    joint_names = names_from_array(where, "joint_names", raw["joint_names"])
+    landmark_names = names_from_array(where, "landmark_names", raw["landmark_names"])
     demo = check_demonstration(where, Demonstration(q=raw["q"], dt=raw["dt"], landmarks=raw["landmark_poses"],
                                                     name=path.stem), joint_names, landmark_names)
     return demo, joint_names, landmark_names, robot
@@ -321,93 +159,6 @@ def _read_ground_truth(path: Path) -> dict:
     return gt
 
 
-def _check_limits(where: str, q: np.ndarray, joint_names, lower, upper, tol: float) -> None:
-    below = q < lower - tol
-    above = q > upper + tol
-    if below.any() or above.any():
-        s, j = np.argwhere(below | above)[0]
-        raise _fail(where, f"sample {s}, joint {joint_names[j]!r} = {q[s, j]:.4f} rad is outside its "
-                           f"limits [{lower[j]:.4f}, {upper[j]:.4f}] (tolerance {tol} rad)")
-
-
-def _same_dt(where: str, dt: float, first: str, dt0: float) -> None:
-    if not same_interval(dt, dt0):
-        raise _fail(where, f"sampling interval dt={dt} differs from {first}'s dt={dt0}")
-
-
-def _check_tolerance(limit_tolerance) -> float:
-    """``limit_tolerance`` as a float if it is a finite angle >= 0 (NaN turned the limit check off)."""
-    if not (is_real(limit_tolerance) and math.isfinite(limit_tolerance) and limit_tolerance >= 0):
-        raise ValueError(f"limit_tolerance must be a finite angle >= 0 (rad), got {limit_tolerance!r}")
-    return float(limit_tolerance)
-
-
-def _check_set(demos, wheres: list[str], joint_names: tuple, robot: RobotSpec, task: TaskSpec | None,
-               set_where: str, names_where: str, task_where: str, kin, limit_tolerance: float):
-    """What a set's demonstrations, each checked on its own and with one ``dt``, must satisfy
-    together with their robot and task: the task's ``dt`` is theirs, the joint names are the
-    robot's in its order, ``kin`` (built from ``robot`` when None) is the robot's, every sample
-    is within its joint limits (``limit_tolerance`` rad), and they can be learned from
-    (``unusable_demos``). Returns ``kin``. ``load_demos`` and ``check_demoset``; ``wheres`` name
-    the demonstrations in messages, ``set_where`` the set, ``names_where`` its joint names and
-    ``task_where`` its task."""
-    why = other_task_dt(task.dt, demos[0].dt) if task is not None else None
-    if why:
-        raise DemoFormatError(f"{task_where}: {why}")
-    unknown = [n for n in joint_names if n not in robot.joint_names]
-    if unknown:
-        raise _fail(names_where, f"unknown joint name(s) {unknown}; robot {robot.name!r} has "
-                               f"{list(robot.joint_names)}")
-    if joint_names != robot.joint_names:
-        raise _fail(names_where, f"joint_names must be {list(robot.joint_names)} in this order, got "
-                               f"{list(joint_names)}")
-    if kin is None:
-        from lfd.robot.kinematics import KinematicModel, KinematicsError
-        try:
-            kin = KinematicModel.from_spec(robot)
-        except KinematicsError as e:
-            raise DemoFormatError(f"{names_where}: robot {robot.name!r} cannot be loaded: {e}") from e
-    elif tuple(kin.joint_names) != robot.joint_names or kin.end_link != robot.end_link:
-        raise DemoFormatError(f"{set_where}: the kinematic model (kin) is of joints {list(kin.joint_names)} to "
-                              f"{kin.end_link!r}, not of the demonstrations' robot {robot.name!r} (joints "
-                              f"{list(robot.joint_names)} to {robot.end_link!r})")
-    lower, upper = kin.lower.cpu().numpy(), kin.upper.cpu().numpy()
-    for where, d in zip(wheres, demos):
-        _check_limits(where, d.q, joint_names, lower, upper, limit_tolerance)
-    why = unusable_demos([d.q for d in demos], [d.name for d in demos])
-    if why:
-        raise DemoFormatError(f"{set_where}: {why}")
-    return kin
-
-
-def check_demoset(demoset: DemoSet, kin=None, limit_tolerance: float = LIMIT_TOLERANCE) -> tuple[DemoSet, object]:
-    """A ``DemoSet`` however it was made (built in Python, ``lfd.io.recordings``) checked as
-    ``load_demos`` checks a set's files: each demonstration (``check_demonstration``), one ``dt``,
-    the task, the robot and ``kin`` (``_check_set``). Returns the set with float64 arrays and
-    ``kin`` (built from ``demoset.robot`` when None); ``DemoFormatError`` naming the
-    demonstration otherwise. ``lfd.learning.learn.fit`` calls it on what it is given."""
-    limit_tolerance = _check_tolerance(limit_tolerance)
-    if not isinstance(demoset, DemoSet):
-        raise TypeError(f"expected a DemoSet (lfd.learning.demos), got {type(demoset).__name__}")
-    if not isinstance(demoset.robot, RobotSpec):
-        raise DemoFormatError(f"the DemoSet: robot must be a RobotSpec, got {type(demoset.robot).__name__}")
-    if isinstance(demoset.demos, (str, bytes)) or not len(demoset.demos):
-        raise DemoFormatError("the DemoSet: no demonstrations")
-    joint_names = _as_names("the DemoSet", "joint_names", np.asarray(demoset.joint_names))
-    landmark_names = _as_names("the DemoSet", "landmark_names", np.asarray(demoset.landmark_names))
-    wheres = [f"demonstration {d.name!r}" if getattr(d, "name", "") else f"demonstration {i}"
-              for i, d in enumerate(demoset.demos)]
-    demos: list[Demonstration] = []
-    for where, d in zip(wheres, demoset.demos):
-        demo = check_demonstration(where, d, joint_names, landmark_names)
-        if demos:
-            _same_dt(where, demo.dt, demos[0].name or "demonstration 0", demos[0].dt)
-        demos.append(demo)
-    kin = _check_set(demos, wheres, joint_names, demoset.robot, demoset.task, "the DemoSet", "the DemoSet",
-                     "the DemoSet's task", kin, limit_tolerance)
-    return replace(demoset, demos=tuple(demos), joint_names=joint_names, landmark_names=landmark_names), kin
-
-
 def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
                limit_tolerance: float = LIMIT_TOLERANCE) -> DemoSet:
     """Load and validate a demonstration set.
@@ -425,7 +176,7 @@ def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
     DemoFormatError
         naming the file, the demonstration and the key for each problem.
     """
-    limit_tolerance = _check_tolerance(limit_tolerance)
+    limit_tolerance = check_limit_tolerance(limit_tolerance)
     if time_steps is not None:
         check_whole(time_steps, "time_steps", 2)
     files, root = _demo_files(Path(path))
@@ -433,7 +184,7 @@ def load_demos(path: str | Path, time_steps: int | None = None, kin=None,
     if time_steps is None:
         time_steps = task.time_steps if task is not None else 24
     demos, (_, joint_names, landmark_names, robot, _) = _read_consistent(files, time_steps)
-    _check_set(demos, [str(f) for f in files], joint_names, robot, task, str(root), str(files[0]),
+    check_set(demos, [str(f) for f in files], joint_names, robot, task, str(root), str(files[0]),
                str(root / "task.json"), kin, limit_tolerance)
     return DemoSet(demos=tuple(demos), joint_names=joint_names, landmark_names=landmark_names,
                    robot=robot, task=task, ground_truth=ground_truth, root=root)
@@ -500,15 +251,15 @@ def _read_consistent(files: list[Path], time_steps: int):
         else:
             f0, j0, l0, r0, dt0 = first
             if robot != r0:
-                raise _fail(str(f), f"recorded on robot {robot.to_dict()} but {f0.name} on {r0.to_dict()}")
+                raise DemoFormatError.at(str(f), f"recorded on robot {robot.to_dict()} but {f0.name} on {r0.to_dict()}")
             if joint_names != j0:
-                raise _fail(str(f), f"joint_names {list(joint_names)} differ from {f0.name}'s {list(j0)}")
+                raise DemoFormatError.at(str(f), f"joint_names {list(joint_names)} differ from {f0.name}'s {list(j0)}")
             if landmark_names != l0:
-                raise _fail(str(f), f"landmark_names {list(landmark_names)} (Z={len(landmark_names)}) differ "
+                raise DemoFormatError.at(str(f), f"landmark_names {list(landmark_names)} (Z={len(landmark_names)}) differ "
                                     f"from {f0.name}'s {list(l0)} (Z={len(l0)})")
-            _same_dt(str(f), demo.dt, f0.name, dt0)
+            check_same_dt(str(f), demo.dt, f0.name, dt0)
         if demo.n_samples < time_steps:
-            raise _fail(str(f), f"only {demo.n_samples} samples, fewer than the {time_steps} time steps of "
+            raise DemoFormatError.at(str(f), f"only {demo.n_samples} samples, fewer than the {time_steps} time steps of "
                                 f"the task model")
         demos.append(demo)
     assert first is not None  # files is not empty (_demo_files)

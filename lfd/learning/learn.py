@@ -45,7 +45,7 @@ import numpy as np
 import torch
 
 from lfd.learning.checkpoint import CheckpointError, FitProgress, config_record, demos_fingerprint
-from lfd.learning.demos import check_demoset
+from lfd.learning.demo_checks import check_demoset
 from lfd.learning.dtw import (
     dwell_limits,
     effective_demos,
@@ -112,8 +112,8 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
 
     Parameters
     ----------
-    demoset : lfd.learning.demos.DemoSet (its ``ground_truth`` is never read), checked as
-        ``load_demos`` checks a set's files (``lfd.learning.demos.check_demoset``), however it was made.
+    demoset : lfd.learning.demoset.DemoSet (its ``ground_truth`` is never read), checked as
+        ``load_demos`` checks a set's files (``lfd.learning.demo_checks.check_demoset``), however it was made.
     kin : lfd.robot.kinematics.KinematicModel of ``demoset.robot`` (moved to the config's dtype/device);
         None: built from ``demoset.robot``.
     config : FitConfig (defaults when None).
@@ -137,7 +137,7 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
 
     Raises
     ------
-    lfd.learning.demos.DemoFormatError (a ``lfd.errors.UserInputError``)
+    lfd.learning.demoset.DemoFormatError (a ``lfd.errors.UserInputError``)
         demonstrations that ``load_demos`` would refuse, or a ``kin`` of another robot.
     FitError (a ``lfd.errors.UserInputError``)
         demonstrations too short for the time steps, a mode that needs ``demoset.task``

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from lfd.learning.demos import Demonstration, DemoSet
+from lfd.learning.demoset import Demonstration, DemoSet
 from lfd.learning.tasks import is_real
 from lfd.robot.robots import BAXTER_LEFT, PANDA, RobotSpec
 

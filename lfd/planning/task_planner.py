@@ -45,7 +45,7 @@ import math
 import numpy as np
 import torch
 
-from lfd.learning.demos import LIMIT_TOLERANCE
+from lfd.learning.demo_checks import LIMIT_TOLERANCE
 from lfd.learning.model import TaskModel
 from lfd.planning.growth import BiasedGrowth
 from lfd.planning.planner import ClosedLoopPlanner, PlanResult, time_step
