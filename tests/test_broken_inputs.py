@@ -261,6 +261,10 @@ BROKEN_MODELS = [
      "mu holds NaN"),
     ("sigma-zero", lambda d: _break_tensor(d, "sigma_inv", torch.zeros(4, 10, 10, dtype=torch.float64)),
      "positive diagonal"),
+    ("sigma-upper", lambda d: _break_tensor(d, "sigma_inv", torch.eye(10, dtype=torch.float64).repeat(4, 1, 1)
+                                            + torch.triu(torch.full((10, 10), 0.3, dtype=torch.float64), 1)),
+     "sigma_inv must be lower triangular"),  # loaded; its log det, read off the diagonal, was wrong
+    ("names-repeated", lambda d: _break_config(d, all_landmark_names=["bowl", "bowl"]), "distinct non-empty strings"),
     ("not-tensors", lambda d: _break_tensor(d, "tool", [0.0, 0.0, 0.0]), "must be real floating-point (dense) tensors"),
     ("complex", lambda d: _break_tensor(d, "tool", torch.zeros(3, dtype=torch.complex128)),
      "must be real floating-point (dense) tensors"),

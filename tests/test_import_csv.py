@@ -315,3 +315,20 @@ def test_joint_columns_degrees_must_be_true_or_false():
     with pytest.raises(RecordingError, match=r"^JointColumns: 'degrees' must be true or false, got 'false'$"):
         JointColumns(degrees="false")
     assert JointColumns(degrees=np.bool_(True)).degrees is True
+
+
+def test_arguments_of_the_wrong_kind_are_named():
+    """A robot's name, a dict of columns, a task's name and a rate as text failed as AttributeError
+    or Python's comparison TypeError, naming no argument."""
+    from lfd.io.recordings import RecordingError
+    with pytest.raises(TypeError, match=r"^robot must be a RobotSpec .*got 'baxter_left'$"):
+        import_recordings(DATA, "baxter_left", 10.0)
+    with pytest.raises(TypeError, match=r"^columns must be a JointColumns .*got dict$"):
+        import_recordings(DATA, BAXTER_LEFT, 10.0, columns={"left_s0": "j0"})
+    with pytest.raises(TypeError, match=r"^task must be a TaskSpec or None .*got 'powder'$"):
+        import_recordings(DATA, BAXTER_LEFT, 10.0, task="powder")
+    for kw in ({"rate": "10"}, {"rate": 10.0, "trim": "0.01"}, {"rate": 10.0, "max_gap": None}):
+        with pytest.raises(RecordingError, match=r"^rate, max_gap and trim must be numbers"):
+            import_recordings(DATA, BAXTER_LEFT, **kw)
+    ds, _ = import_recordings(DATA, BAXTER_LEFT, 10, trim=0)  # whole numbers are numbers
+    assert abs(ds.dt - 0.1) < 1e-6

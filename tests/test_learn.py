@@ -49,6 +49,9 @@ def test_config_options_are_validated():
         FitConfig(band=-1)
     with pytest.raises(ValueError, match="SolverSettings.tool_search"):
         FitConfig(solver=SolverSettings(tool_search=-0.1))
+    for bad in (2.5, 0, True):  # 2.5 was searched as a 2x2x2 grid
+        with pytest.raises(ValueError, match=r"SolverSettings.tool_grid must be a whole number >= 1"):
+            SolverSettings(tool_grid=bad)
     with pytest.raises(ValueError, match="FitConfig.max_dwell must be at least 1"):
         FitConfig(max_dwell=0.5)
     for bad in (-1.0, 0.0, float("nan")):  # was a non-positive-definite Sigma and 'every restart failed'

@@ -44,7 +44,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from lfd.errors import UserInputError
 from lfd.learning.demo_checks import LIMIT_TOLERANCE, far_landmark, jumping_landmark, other_task_dt, unusable_demos
 from lfd.learning.demoset import Demonstration, DemoSet
-from lfd.learning.tasks import TaskSpec
+from lfd.learning.tasks import TaskSpec, is_real
 from lfd.robot.robots import RobotSpec
 from lfd.robot.se3 import not_rigid
 
@@ -329,6 +329,15 @@ def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: Tas
     landmarks held still or tracked). ``T_base_frame (4, 4)``: the landmark CSVs' frame in the
     robot's base frame, a rigid transform (default: they are in the base frame). ``task``: the
     set's task, whose ``dt`` must be the samples' ``1 / rate``. ``RecordingError`` on bad input."""
+    if not isinstance(robot, RobotSpec):  # a name gave an AttributeError deep in the column check
+        raise TypeError(f"robot must be a RobotSpec (e.g. lfd.robot.robots.BAXTER_LEFT), got {robot!r}")
+    if task is not None and not isinstance(task, TaskSpec):
+        raise TypeError(f"task must be a TaskSpec or None (lfd.learning.tasks.task_from_name), got {task!r}")
+    if columns is not None and not isinstance(columns, JointColumns):  # a dict: AttributeError on .check
+        raise TypeError(f"columns must be a JointColumns (JointColumns(joints={{...}}) for a mapping), got "
+                        f"{type(columns).__name__}")
+    if not all(is_real(v) for v in (rate, max_gap, trim)):  # strings: Python's TypeError from a comparison
+        raise RecordingError(f"rate, max_gap and trim must be numbers, got {rate!r}, {max_gap!r}, {trim!r}")
     if not (math.isfinite(rate) and rate > 0) or not max_gap > 0 or not trim >= 0:
         raise RecordingError(f"rate and max_gap must be positive and trim >= 0, got {rate}, {max_gap}, {trim}")
     why = other_task_dt(task.dt, 1.0 / rate) if task is not None else None

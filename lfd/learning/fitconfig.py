@@ -83,15 +83,14 @@ class SolverSettings:
     def __post_init__(self):
         if self.m_step not in M_STEPS:
             raise ValueError(f"SolverSettings.m_step must be one of {', '.join(M_STEPS)}; got {self.m_step!r}")
-        for name in ("max_em_iters", "lbfgs_max_iter", "lbfgs_history", "joint_max_iter"):
+        for name in ("max_em_iters", "lbfgs_max_iter", "lbfgs_history", "joint_max_iter", "tool_grid"):
             check_whole(getattr(self, name), f"SolverSettings.{name}", 1)
         _check_numbers(self, ("em_tol", "lbfgs_tol_grad", "tool_init_std", "tool_search"))
         if not (self.em_tol >= 0 and self.lbfgs_tol_grad >= 0 and self.tool_init_std >= 0):
             raise ValueError("SolverSettings.em_tol, lbfgs_tol_grad and tool_init_std must be >= 0, got "
                              f"{self.em_tol}, {self.lbfgs_tol_grad}, {self.tool_init_std}")
-        if not self.tool_search >= 0 or int(self.tool_grid) < 1:
-            raise ValueError(f"SolverSettings.tool_search must be >= 0 and tool_grid >= 1, got "
-                             f"{self.tool_search}, {self.tool_grid}")
+        if not self.tool_search >= 0:  # NaN too
+            raise ValueError(f"SolverSettings.tool_search must be >= 0, got {self.tool_search}")
         if self.num_threads is not None:
             check_whole(self.num_threads, "SolverSettings.num_threads", 1)
 

@@ -237,8 +237,9 @@ class TaskModel:
                 raise ValueError(f"TaskModel.{name} must have shape {shape}, got {got}")
         if T < 2:
             raise ValueError(f"a task model needs at least 2 time steps, got {T}")
-        kept = self.landmark_names
-        if not all(isinstance(n, str) and n for n in kept + self.all_landmark_names) or len(set(kept)) != len(kept):
+        kept, every = self.landmark_names, self.all_landmark_names
+        if not all(isinstance(n, str) and n for n in kept + every) or len(set(kept)) != len(kept) \
+                or len(set(every)) != len(every):
             raise ValueError(f"landmark names must be distinct non-empty strings, got {list(kept)} "
                              f"(kept) of {list(self.all_landmark_names)}")
         if not set(self.landmark_names) <= set(self.all_landmark_names):
@@ -257,6 +258,10 @@ class TaskModel:
             raise ValueError(f"TaskModel.env must sum to 1, got {float(self.env.sum())}")
         if not (torch.diagonal(self.sigma_inv, dim1=-2, dim2=-1) > 0).all():
             raise ValueError("TaskModel.sigma_inv must have a positive diagonal (inverse Cholesky factors)")
+        upper = torch.triu(self.sigma_inv, diagonal=1).abs().amax()  # log det is the diagonal's only if triangular
+        if float(upper) > 1e-9 * float(self.sigma_inv.abs().amax()):
+            raise ValueError(f"TaskModel.sigma_inv must be lower triangular (inverse Cholesky factors), got entries "
+                             f"above the diagonal up to {float(upper):.3g}")
         if not (math.isfinite(self.logdet_scale) and self.logdet_scale > 0):
             raise ValueError(f"TaskModel.logdet_scale must be finite and positive, got {self.logdet_scale}")
 
