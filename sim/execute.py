@@ -18,7 +18,9 @@ along its old plan (the bowl may already be elsewhere). The plan starts at the f
 at or after where the robot is expected to be when it arrives (the old plan's configuration and
 time step that far ahead: the landmark update's time, already spent, plus the last search's; with
 a fixed latency, that figure): a new plan starts at rest, as the arm is at a waypoint, and one
-that took over in the middle of an edge stopped the arm dead. It takes over when the robot gets
+that took over in the middle of an edge stopped the arm dead. When what was sensed puts that
+waypoint in collision (a bowl moved onto the path ahead), the plan starts at the latest free
+waypoint before it instead. It takes over when the robot gets
 there, or, if it arrives later than forecast, after the robot retraces the waypoints it passed
 since (a motion it has just made). While a plan is on its way no new one is asked for, and
 planner work that gave no plan (a re-plan that found none, a growth round that added no vertex)
@@ -366,7 +368,7 @@ class _ClosedLoop:
             return
         update_s = time.perf_counter() - tic
         pos = follow.at_rest_after(follow.predict(self._forecast(kind, update_s)))  # it starts at rest
-        res = planner.plan(follow.q_at(pos), follow.step_at(pos))
+        pos, res = self._plan_from_free_waypoint(pos)
         wall = time.perf_counter() - tic
         self.search_s[kind] = res.latency_s
         result.n_replans += 1
@@ -382,6 +384,26 @@ class _ClosedLoop:
             self.pending = {"arrive": done_at, "res": res, "pos": pos}
         else:  # nothing to take over; the next reading comes once the planner is free again
             self.busy_until = done_at
+
+
+    def _plan_from_free_waypoint(self, pos):
+        """``(pos, plan)``: a plan from waypoint ``pos`` of the current plan or, when what was
+        sensed puts that waypoint in collision (a bowl moved onto the path ahead), from the
+        latest waypoint before it that is free, which the robot retraces to when the plan
+        arrives. Driving on to the blocked waypoint would hit what the planner has just seen."""
+        follow = self.follow
+        assert follow is not None
+        res = self.planner.plan(follow.q_at(pos), follow.step_at(pos))
+        tried = follow.q_at(pos)
+        k = pos[0]
+        while res.status == "start_in_collision" and k > 0:
+            k -= 1
+            q = follow.q_at((k, 0.0))
+            if np.array_equal(q, tried):  # a wait at one waypoint: the same configuration
+                continue
+            tried, pos = q, (k, 0.0)
+            res = self.planner.plan(q, follow.step_at(pos))
+        return pos, res
 
 
 def _settle_and_judge(world, contacts: _ContactLog, result: RunResult, s: ExecSettings, step: int,

@@ -138,3 +138,58 @@ def test_the_bowl_moves_on_time_while_the_planner_is_busy(make_world):
     busy_steps = int(round(LATENCY_S / L.SIM_DT))
     assert any(c < moved_at["no path"] <= c + busy_steps for c in busy["no path"]), (busy, moved_at)  # mid-work
     assert moved_at["still"] == moved_at["no path"]
+
+
+class _BlockedAheadPlanner(_ScriptedPlanner):
+    """A first plan home -> A -> B -> home; every later plan checks its start in the real world
+    (``collision_fn``) and answers 'start_in_collision' as the planner does, or a plan from
+    there straight home."""
+
+    def __init__(self, world, kin, A, B, collision_fn):
+        super().__init__(world, kin, "still", time_steps=24)
+        self.A, self.B, self.collision_fn = A, B, collision_fn
+        self.starts: list[tuple[np.ndarray, bool]] = []
+
+    def plan(self, q, step):
+        home = np.asarray(L.HOME_Q, dtype=float)
+        if not self.planned:
+            self.planned = True
+            return PlanResult("ok", np.stack([home, self.A, self.B, home]), np.array([0, 8, 16, 23]),
+                              np.arange(4), 1.0, 0, 0.001)
+        blocked = bool(self.collision_fn(q))
+        self.starts.append((np.array(q), blocked))
+        if blocked:
+            empty = np.zeros((0, 7))
+            return PlanResult("start_in_collision", empty, np.zeros(0, int), np.zeros(0, int), np.inf, 0, 0.001,
+                              message="start")
+        return PlanResult("ok", np.stack([q, home]), np.array([step, 23]), np.array([-1, 0]), 1.0, 0, 0.001)
+
+
+def test_a_bowl_moved_onto_the_path_ahead_is_not_driven_into(make_world):
+    """The bowl moved onto the next waypoint of the plan being followed: the re-plan from there
+    answers 'start_in_collision', and the robot used to follow its old plan into the bowl (a
+    powder scene with another task point, 1300045, failed so). Now the re-plan starts at the
+    latest free waypoint before it, the robot goes back there, and nothing is touched."""
+    from sim.collision import make_collision_fns
+    from sim.scenarios import Scenario
+
+    world = make_world("powder", n_particles=0)
+    kin = KinematicModel.from_spec()
+    home = np.asarray(L.HOME_Q, dtype=float)
+    A, B = home + [0.4, -0.3, 0, 0, 0, 0, 0], home + [0.4, 0, 0.4, 0, 0, 0, 0]  # B 30 cm below A
+    world.set_q(B)
+    gripper_at_B = world.T_world_gripper()[:3, 3]
+    world.set_q(home)
+    bowl = tuple(world.sensed_landmarks()[1][0][:2, 3])
+    fns = make_collision_fns(world)
+    # the bowl's floor (its base frame) where the gripper will be at B: B collides, A does not;
+    # it moves at step 8 of 24 (a share of 0.34), as the robot leaves A for B
+    sc = Scenario(task="powder", seed=0, placements={}, bowl_after=tuple(gripper_at_B), move_at=0.34)
+    planner = _BlockedAheadPlanner(world, kin, A, B, fns.collision_fn)
+    result = execute_plan(world, planner, sc, ExecSettings(latency="none", pace="fastest", settle_s=0.0))
+    world.move_object("bowl", bowl)
+    blocked = [b for _, b in planner.starts]
+    assert blocked[:2] == [True, False], (blocked, result.contacts)  # B first, then the waypoint before it
+    assert np.array_equal(planner.starts[0][0], B) and np.array_equal(planner.starts[1][0], A)
+    assert result.contacts == [] and result.retraced >= 1, (result.contacts, result.retraced)
+    assert result.plan_statuses[1] == "ok"
