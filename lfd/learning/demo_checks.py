@@ -118,9 +118,11 @@ def _as_float(where: str, key: str, value, ndim: int) -> np.ndarray:
 
 
 def names_from_array(where: str, key: str, value) -> tuple[str, ...]:
+    """The names held by ``value``, a 1-D array of strings (bytes decoded as UTF-8), each
+    non-empty and none repeated; ``DemoFormatError`` naming ``where`` and ``key`` otherwise."""
     if value.dtype.kind not in "US" or value.ndim != 1:
         raise DemoFormatError.at(where, f"key {key!r} must be a 1-D array of strings, got dtype {value.dtype} "
-                           f"and shape {value.shape}")
+                                        f"and shape {value.shape}")
     try:  # bytes (dtype S, e.g. written by Python 2 or h5py) are decoded, not shown as "b'...'"
         names = tuple(v.decode("utf-8") if isinstance(v, bytes) else str(v) for v in value.tolist())
     except UnicodeDecodeError as e:
@@ -138,12 +140,12 @@ def _landmark_poses(where: str, value, names: tuple, n_samples: int, dt: float) 
     ones moving as an object can (``far_landmark``, ``jumping_landmark``)."""
     shape = f"({len(names)}, 4, 4) or, tracked, ({n_samples}, {len(names)}, 4, 4)"
     if value.dtype.kind not in "fiu" or value.ndim not in (3, 4):
-        raise DemoFormatError.at(where, f"key 'landmark_poses' must be numeric of shape {shape} to match 'landmark_names' "
-                           f"and 'q', got dtype {value.dtype} and shape {value.shape}")
+        raise DemoFormatError.at(where, f"key 'landmark_poses' must be numeric of shape {shape} to match "
+                                        f"'landmark_names' and 'q', got dtype {value.dtype} and shape {value.shape}")
     poses = _as_float(where, "landmark_poses", value, value.ndim)
     if poses.shape[-3:] != (len(names), 4, 4) or (poses.ndim == 4 and poses.shape[0] != n_samples):
-        raise DemoFormatError.at(where, f"key 'landmark_poses' must have shape {shape} to match 'landmark_names' and 'q', "
-                           f"got {poses.shape}")
+        raise DemoFormatError.at(where, f"key 'landmark_poses' must have shape {shape} to match 'landmark_names' "
+                                        f"and 'q', got {poses.shape}")
     if poses.shape[-3] == 0:
         raise DemoFormatError.at(where, "no sensed landmarks: 'landmark_poses' is empty")
     bad = np.argwhere(not_rigid(poses))
@@ -152,8 +154,8 @@ def _landmark_poses(where: str, value, names: tuple, n_samples: int, dt: float) 
         ortho, det, bottom = rigid_errors(poses[idx])
         at = f" at sample {idx[0]}" if poses.ndim == 4 else ""
         raise DemoFormatError.at(where, f"landmark {names[idx[-1]]!r} pose{at} is not a rigid transform "
-                           f"(|R^T R - I| = {ortho:.2g}, |det R - 1| = {det:.2g}, "
-                           f"bottom row error {bottom:.2g})")
+                                        f"(|R^T R - I| = {ortho:.2g}, |det R - 1| = {det:.2g}, "
+                                        f"bottom row error {bottom:.2g})")
     why = far_landmark(poses, names) or jumping_landmark(poses, names, dt)
     if why:
         raise DemoFormatError.at(where, why)
@@ -168,12 +170,12 @@ def check_demonstration(where: str, demo: Demonstration, joint_names, landmark_n
     q = _as_float(where, "q", np.asarray(demo.q), 2)
     if q.shape[1] != len(joint_names):
         raise DemoFormatError.at(where, f"key 'q' has {q.shape[1]} columns but 'joint_names' names {len(joint_names)} "
-                           f"joints")
+                                        f"joints")
     dt = _as_float(where, "dt", np.asarray(demo.dt), 0)
     if not 0 < dt <= MAX_DT:
         hint = " (milliseconds given as seconds?)" if dt > MAX_DT else ""
-        raise DemoFormatError.at(where, f"key 'dt' (sampling interval, seconds) must be positive and at most {MAX_DT:g}, "
-                           f"got {float(dt)}{hint}")
+        raise DemoFormatError.at(where, f"key 'dt' (sampling interval, seconds) must be positive and at most "
+                                        f"{MAX_DT:g}, got {float(dt)}{hint}")
     poses = _landmark_poses(where, np.asarray(demo.landmarks), tuple(landmark_names), len(q), float(dt))
     return Demonstration(q=q, dt=float(dt), landmarks=poses, name=demo.name)
 
@@ -184,10 +186,11 @@ def _check_limits(where: str, q: np.ndarray, joint_names, lower, upper, tol: flo
     if below.any() or above.any():
         s, j = np.argwhere(below | above)[0]
         raise DemoFormatError.at(where, f"sample {s}, joint {joint_names[j]!r} = {q[s, j]:.4f} rad is outside its "
-                           f"limits [{lower[j]:.4f}, {upper[j]:.4f}] (tolerance {tol} rad)")
+                                        f"limits [{lower[j]:.4f}, {upper[j]:.4f}] (tolerance {tol} rad)")
 
 
 def check_same_dt(where: str, dt: float, first: str, dt0: float) -> None:
+    """``DemoFormatError`` at ``where`` when its interval ``dt`` is not ``first``'s ``dt0``."""
     if not same_interval(dt, dt0):
         raise DemoFormatError.at(where, f"sampling interval dt={dt} differs from {first}'s dt={dt0}")
 
@@ -214,10 +217,10 @@ def check_set(demos, wheres: list[str], joint_names: tuple, robot: RobotSpec, ta
     unknown = [n for n in joint_names if n not in robot.joint_names]
     if unknown:
         raise DemoFormatError.at(names_where, f"unknown joint name(s) {unknown}; robot {robot.name!r} has "
-                               f"{list(robot.joint_names)}")
+                                            f"{list(robot.joint_names)}")
     if joint_names != robot.joint_names:
         raise DemoFormatError.at(names_where, f"joint_names must be {list(robot.joint_names)} in this order, got "
-                               f"{list(joint_names)}")
+                                            f"{list(joint_names)}")
     if kin is None:
         from lfd.robot.kinematics import KinematicModel, KinematicsError
         try:

@@ -95,24 +95,28 @@ def _read_npz(path: Path) -> dict:
         with np.load(path, allow_pickle=False) as z:
             missing = [k for k in REQUIRED_KEYS if k not in z.files]
             if missing:
-                raise DemoFormatError.at(where, f"missing key(s) {missing}; a demonstration needs {list(REQUIRED_KEYS)}")
+                raise DemoFormatError.at(where, f"missing key(s) {missing}; a demonstration needs "
+                                                f"{list(REQUIRED_KEYS)}")
             raw = {k: z[k] for k in REQUIRED_KEYS}
     except DemoFormatError:
         raise
     except ValueError as e:
         if "pickle" in str(e):  # object arrays need pickle, which is refused
-            raise DemoFormatError.at(where, f"cannot read without pickle ({e}); store names as plain string arrays") from e
+            raise DemoFormatError.at(where, f"cannot read without pickle ({e}); store names as plain string "
+                                            "arrays") from e
         raise DemoFormatError.at(where, f"damaged .npz file: a member is not a readable array ({e})") from e
     except zlib.error as e:
         raise DemoFormatError.at(where, f"damaged .npz file: a compressed member does not decompress ({e})") from e
     except MemoryError as e:  # numpy allocates what a member's header claims before reading it
-        raise DemoFormatError.at(where, f"damaged .npz file: a member's header claims an array too large to hold ({e})") from e
+        raise DemoFormatError.at(where, f"damaged .npz file: a member's header claims an array too large to "
+                                        f"hold ({e})") from e
     except (OSError, zipfile.BadZipFile, EOFError, KeyError, RuntimeError, NotImplementedError) as e:
         # RuntimeError: an encrypted member; NotImplementedError: a compression zipfile lacks
         raise DemoFormatError.at(where, f"not a readable .npz file ({type(e).__name__}: {e})") from e
     for k, v in raw.items():
         if not isinstance(v, np.ndarray):  # numpy returns a member that is not .npy as raw bytes
-            raise DemoFormatError.at(where, f"key {k!r} is not a .npy array inside the archive (got {type(v).__name__})")
+            raise DemoFormatError.at(where, f"key {k!r} is not a .npy array inside the archive (got "
+                                            f"{type(v).__name__})")
     return raw
 
 
@@ -122,7 +126,7 @@ def _check_one(path: Path, raw: dict) -> tuple[Demonstration, tuple, tuple, Robo
         robot = RobotSpec.from_dict(json.loads(str(raw["robot"])))
     except (ValueError, TypeError) as e:
         raise DemoFormatError.at(where, f"key 'robot' must be the JSON of a RobotSpec (name, urdf, end_link, "
-                           f"joint_names): {e}") from e
+                                        f"joint_names): {e}") from e
     joint_names = names_from_array(where, "joint_names", raw["joint_names"])
     landmark_names = names_from_array(where, "landmark_names", raw["landmark_names"])
     demo = check_demonstration(where, Demonstration(q=raw["q"], dt=raw["dt"], landmarks=raw["landmark_poses"],
@@ -255,12 +259,12 @@ def _read_consistent(files: list[Path], time_steps: int):
             if joint_names != j0:
                 raise DemoFormatError.at(str(f), f"joint_names {list(joint_names)} differ from {f0.name}'s {list(j0)}")
             if landmark_names != l0:
-                raise DemoFormatError.at(str(f), f"landmark_names {list(landmark_names)} (Z={len(landmark_names)}) differ "
-                                    f"from {f0.name}'s {list(l0)} (Z={len(l0)})")
+                raise DemoFormatError.at(str(f), f"landmark_names {list(landmark_names)} (Z={len(landmark_names)}) "
+                                                 f"differ from {f0.name}'s {list(l0)} (Z={len(l0)})")
             check_same_dt(str(f), demo.dt, f0.name, dt0)
         if demo.n_samples < time_steps:
-            raise DemoFormatError.at(str(f), f"only {demo.n_samples} samples, fewer than the {time_steps} time steps of "
-                                f"the task model")
+            raise DemoFormatError.at(str(f), f"only {demo.n_samples} samples, fewer than the {time_steps} time "
+                                             f"steps of the task model")
         demos.append(demo)
     assert first is not None  # files is not empty (_demo_files)
     return demos, first
