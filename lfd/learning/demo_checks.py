@@ -213,7 +213,7 @@ def check_set(demos, wheres: list[str], joint_names: tuple, robot: RobotSpec, ta
     ``task_where`` its task."""
     why = other_task_dt(task.dt, demos[0].dt) if task is not None else None
     if why:
-        raise DemoFormatError(f"{task_where}: {why}")
+        raise DemoFormatError.at(task_where, why)
     unknown = [n for n in joint_names if n not in robot.joint_names]
     if unknown:
         raise DemoFormatError.at(names_where, f"unknown joint name(s) {unknown}; robot {robot.name!r} has "
@@ -226,17 +226,17 @@ def check_set(demos, wheres: list[str], joint_names: tuple, robot: RobotSpec, ta
         try:
             kin = KinematicModel.from_spec(robot)
         except KinematicsError as e:
-            raise DemoFormatError(f"{names_where}: robot {robot.name!r} cannot be loaded: {e}") from e
+            raise DemoFormatError.at(names_where, f"robot {robot.name!r} cannot be loaded: {e}") from e
     elif tuple(kin.joint_names) != robot.joint_names or kin.end_link != robot.end_link:
-        raise DemoFormatError(f"{set_where}: the kinematic model (kin) is of joints {list(kin.joint_names)} to "
-                              f"{kin.end_link!r}, not of the demonstrations' robot {robot.name!r} (joints "
-                              f"{list(robot.joint_names)} to {robot.end_link!r})")
+        raise DemoFormatError.at(set_where, f"the kinematic model (kin) is of joints {list(kin.joint_names)} to "
+                                            f"{kin.end_link!r}, not of the demonstrations' robot {robot.name!r} "
+                                            f"(joints {list(robot.joint_names)} to {robot.end_link!r})")
     lower, upper = kin.lower.cpu().numpy(), kin.upper.cpu().numpy()
     for where, d in zip(wheres, demos):
         _check_limits(where, d.q, joint_names, lower, upper, limit_tolerance)
     why = unusable_demos([d.q for d in demos], [d.name for d in demos])
     if why:
-        raise DemoFormatError(f"{set_where}: {why}")
+        raise DemoFormatError.at(set_where, why)
     return kin
 
 
@@ -250,9 +250,9 @@ def check_demoset(demoset: DemoSet, kin=None, limit_tolerance: float = LIMIT_TOL
     if not isinstance(demoset, DemoSet):
         raise TypeError(f"expected a DemoSet (lfd.learning.demoset), got {type(demoset).__name__}")
     if not isinstance(demoset.robot, RobotSpec):
-        raise DemoFormatError(f"the DemoSet: robot must be a RobotSpec, got {type(demoset.robot).__name__}")
+        raise DemoFormatError.at("the DemoSet", f"robot must be a RobotSpec, got {type(demoset.robot).__name__}")
     if isinstance(demoset.demos, (str, bytes)) or not len(demoset.demos):
-        raise DemoFormatError("the DemoSet: no demonstrations")
+        raise DemoFormatError.at("the DemoSet", "no demonstrations")
     joint_names = names_from_array("the DemoSet", "joint_names", np.asarray(demoset.joint_names))
     landmark_names = names_from_array("the DemoSet", "landmark_names", np.asarray(demoset.landmark_names))
     wheres = [f"demonstration {d.name!r}" if getattr(d, "name", "") else f"demonstration {i}"
