@@ -385,7 +385,6 @@ class _ClosedLoop:
         else:  # nothing to take over; the next reading comes once the planner is free again
             self.busy_until = done_at
 
-
     def _plan_from_free_waypoint(self, pos):
         """``(pos, plan)``: a plan from waypoint ``pos`` of the current plan or, when what was
         sensed puts that waypoint in collision (a bowl moved onto the path ahead), from the
@@ -393,15 +392,15 @@ class _ClosedLoop:
         arrives. Driving on to the blocked waypoint would hit what the planner has just seen."""
         follow = self.follow
         assert follow is not None
-        res = self.planner.plan(follow.q_at(pos), follow.step_at(pos))
-        tried = follow.q_at(pos)
+        q = follow.q_at(pos)
+        res = self.planner.plan(q, follow.step_at(pos))
         k = pos[0]
         while res.status == "start_in_collision" and k > 0:
             k -= 1
-            q = follow.q_at((k, 0.0))
-            if np.array_equal(q, tried):  # a wait at one waypoint: the same configuration
+            before = follow.q_at((k, 0.0))
+            if np.array_equal(before, q):  # a wait at one waypoint: the same configuration
                 continue
-            tried, pos = q, (k, 0.0)
+            q, pos = before, (k, 0.0)
             res = self.planner.plan(q, follow.step_at(pos))
         return pos, res
 

@@ -241,7 +241,7 @@ class TaskModel:
         if not all(isinstance(n, str) and n for n in kept + every) or len(set(kept)) != len(kept) \
                 or len(set(every)) != len(every):
             raise ValueError(f"landmark names must be distinct non-empty strings, got {list(kept)} "
-                             f"(kept) of {list(self.all_landmark_names)}")
+                             f"(kept) of {list(every)}")
         if not set(self.landmark_names) <= set(self.all_landmark_names):
             raise ValueError(f"kept landmarks {list(self.landmark_names)} are not among all landmarks "
                              f"{list(self.all_landmark_names)}")
