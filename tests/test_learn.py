@@ -1,6 +1,7 @@
 """The EM fit: objective pieces against references, and recovery of a known model."""
 
 import math
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -332,7 +333,8 @@ def test_an_error_in_a_restart_thread_ends_the_fit_and_stops_the_others(synth, k
 
     def counted(self, *args, **kw):
         e_steps.append(1)
-        return e_step(self, *args, **kw)
+        time.sleep(0.2)  # each E-step slow (the GIL released): restart 1 cannot run to its end in the
+        return e_step(self, *args, **kw)  # moment restart 0's error takes to reach the fit (once it did)
 
     monkeypatch.setattr(EMFitter, "e_step", counted)
     seen = []
