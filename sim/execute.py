@@ -10,27 +10,35 @@ from ``t0`` to ``t1`` (``lfd.timing.step_clock``: skipped steps keep their time)
 configuration space is the plan's; only its timing is chosen here (``lfd.timing``).
 
 The world does not wait for the planner. Every ``sense_period`` seconds the executor senses the
-landmarks; when a task-relevant one has moved more than ``replan_threshold`` the planner is asked
-for a new plan. The plan takes ``latency`` of simulated time to arrive: "measured" charges the
-wall-clock time of the landmark update and the search, "none" none (the world is frozen while
-the planner works: deterministic tests), a number that many seconds. Meanwhile the robot goes on
-along its old plan (the bowl may already be elsewhere). The plan starts at the first waypoint
-at or after where the robot is expected to be when it arrives (the old plan's configuration and
-time step that far ahead: the landmark update's time, already spent, plus the last search's; with
-a fixed latency, that figure): a new plan starts at rest, as the arm is at a waypoint, and one
-that took over in the middle of an edge stopped the arm dead. When what was sensed puts that
-waypoint in collision (a bowl moved onto the path ahead), the plan starts at the latest free
-waypoint before it instead. It takes over when the robot gets
-there, or, if it arrives later than forecast, after the robot retraces the waypoints it passed
-since (a motion it has just made). While a plan is on its way no new one is asked for, and
+landmarks; when one has moved more than ``replan_threshold`` the planner is asked for a new plan
+(a task landmark changes the plan's costs, any landmark its collisions). The plan takes
+``latency`` of simulated time to arrive: "measured" charges the wall-clock time of the landmark
+update, the path check below and the search, "none" none (the world is frozen while the planner
+works: deterministic tests), a number that many seconds. Meanwhile the robot goes on along its
+old plan (the bowl may already be elsewhere). The plan starts at the first waypoint at or after
+where the robot is expected to be when it arrives (the old plan's configuration and time step
+that far ahead: the landmark update's time, already spent, plus the last search's; with a fixed
+latency, that figure): a new plan starts at rest, as the arm is at a waypoint, and one that took
+over in the middle of an edge stopped the arm dead. The robot does not pass that waypoint: if it
+gets there first, it holds at rest until the plan arrives (``held_s``), and the plan takes over
+where it starts.
+
+The old plan up to that waypoint is checked against what was just sensed (the planner's
+``segment_fn``, the check its own edges had): when a segment ahead now collides (a bowl moved
+onto the path), the new plan starts where the free part ends -- the start of that segment, or
+where the robot is if it is on it -- and the robot stops there. A re-plan that finds no path
+leaves the robot on its old plan only as far as the old plan is still free (the rest is checked
+then); it stops before the first blocked segment, and when the planner has nothing more to try
+(no landmark moved, no growth round pending) the run ends there (``stopped``), rather than driving
+into what was seen. While a plan is on its way no new one is asked for, and
 planner work that gave no plan (a re-plan that found none, a growth round that added no vertex)
 keeps the planner busy for its charged time just the same. After a far move the landmark update answers on the current
 roadmap and the biased regrowth (``TaskPlanner.grow``) runs a round at a time, each round (a
 fraction of a second to a second) followed by a re-plan at the next reading, charged the same way:
 the robot executes the first answer while the roadmap grows (anytime). Every re-plan is recorded: ``replan_kind`` ("move" or "growth"), ``replan_update_ms``
-(landmark update or growth), ``replan_ms`` (the search, ``PlanResult.latency_s``, what the paper
-reports), ``charged_ms`` (the simulated time it cost), and ``retraced`` waypoints; growth rounds
-that added no vertex (no re-plan followed) in ``idle_growth_ms``, the simulated time each cost. ``build_ms``
+(landmark update or growth), ``path_check_ms`` (the old plan's check), ``replan_ms`` (the search,
+``PlanResult.latency_s``, what the paper reports) and ``charged_ms`` (the simulated time it cost);
+growth rounds that added no vertex (no re-plan followed) in ``idle_growth_ms``, the simulated time each cost. ``build_ms``
 is the first update (the roadmap's construction), before the first plan's ``initial_ms``; the
 arm holds at rest while the first plan is made. ``tracking_max_mm``: the largest distance of an
 arm frame or the tool point from where it was commanded; ``planned_tilt_deg`` and
@@ -128,8 +136,10 @@ class RunResult:
     idle_growth_ms: list = field(default_factory=list)  # simulated time of each growth round that added no vertex
     replan_kind: list = field(default_factory=list)  # each re-plan's cause: "move" or "growth" (anytime)
     replan_steps: list = field(default_factory=list)  # each re-plan's [task step asked at, step it starts from]
+    path_check_ms: list = field(default_factory=list)  # the old plan's check before each re-plan (and after a failed one)
     switches: int = 0  # re-plans that arrived and took over
-    retraced: int = 0  # waypoints retraced because a plan arrived after the robot passed its start
+    held_s: float = 0.0  # simulated time the arm held at rest waiting for a plan (or for good: ``stopped``)
+    stopped: str = ""  # why the arm stopped short of its plan's end ("": it did not)
     tracking_max_mm: float = 0.0  # largest distance of an arm frame or the tool point from where commanded
     planned_tilt_deg: float = 0.0  # largest tilt of the tool (sim.attitude) the arm was commanded to
     executed_tilt_deg: float = 0.0  # largest tilt the tool reached
@@ -184,9 +194,14 @@ class _ContactLog:
                                 "distance_m": round(float(distance), 4)})
 
 
-def _relevant(names, poses, keep) -> np.ndarray:
-    idx = [list(names).index(n) for n in keep if n in names]
-    return np.asarray(poses)[idx, :3, 3]
+def _moved(now: np.ndarray, before: np.ndarray, threshold: float) -> bool:
+    """Whether landmark positions ``now (Z, 3)`` differ from ``before`` by more than ``threshold``
+    (m) for any landmark, or one was sensed and is not now or the other way round (NaN)."""
+    if now.shape != before.shape:
+        return True
+    lost = np.isnan(now).any(axis=1) != np.isnan(before).any(axis=1)
+    with np.errstate(invalid="ignore"):
+        return bool(lost.any() or (np.abs(now - before) > threshold).any())
 
 
 def _tracking_error(planner, q_cmd: np.ndarray, q_act: np.ndarray) -> float:
@@ -198,7 +213,8 @@ def _tracking_error(planner, q_cmd: np.ndarray, q_act: np.ndarray) -> float:
 
 def execute_plan(world, planner, scenario=None, settings: ExecSettings | None = None,
                  q_start=None, frames: list | None = None) -> RunResult:
-    """Run the task closed-loop in ``world`` with ``planner`` (an ``lfd.planning.task_planner.TaskPlanner``).
+    """Run the task closed-loop in ``world`` with ``planner`` (an ``lfd.planning.task_planner.TaskPlanner``;
+    its ``segment_fn`` also checks the plan being followed when the world changes).
 
     ``scenario`` (``sim.scenarios.Scenario``) supplies the mid-task bowl move; ``frames``, when a
     list, receives rendered RGB frames every ``settings.frame_every`` steps. The world runs on
@@ -217,7 +233,6 @@ class _ClosedLoop:
         self.vmax = model.kin.velocity.cpu().numpy()
         self.dt = planner.dt
         self.tool = model.tool.detach().cpu().numpy()
-        self.keep = model.landmark_names
         self.clock = (step_clock(model.log_trans.detach().cpu().numpy(), model.offsets, self.dt)
                       if s.pace == "demonstrated" else None)  # (T,)
         self.accel = s.accel if s.profile == "min-jerk" else None
@@ -227,9 +242,10 @@ class _ClosedLoop:
         self.step = 0
         self.follow: PlanFollower | None = None
         self.pending: dict | None = None  # a plan on its way: {"arrive": sim step, "res", "pos": where it starts}
+        self.stop_at: tuple[int, float] | None = None  # a position of the plan the robot must not pass
         self.busy_until = 0  # sim step until which the planner works on something that gave no plan
         self.search_s: dict = {}  # the last search's time of each kind of re-plan
-        self.planned_at: np.ndarray | None = None  # task landmark positions the current plan is for
+        self.planned_at: np.ndarray | None = None  # (Z, 3) landmark positions the current plan is for
         self.contacts: _ContactLog | None = None
 
     def run(self) -> RunResult:
@@ -243,11 +259,12 @@ class _ClosedLoop:
         sense_every = max(1, int(round(s.sense_period / L.SIM_DT)))
         move_step = None if self.scenario is None else self.scenario.move_step(self.planner.model.time_steps)
         assert self.follow is not None  # set by _first_plan
-        while not self.follow.done or self.pending is not None:
+        while (not self.follow.done or self.pending is not None) and not result.stopped:
             if self._take_over_arrived_plan():
                 break
-            if self.follow.done:  # the old plan ended before the new one arrived: hold
+            if self._holding():  # at the new plan's start before it arrived, or before a blocked segment
                 self.qdot = np.zeros_like(self.q_cmd)
+                result.held_s += L.SIM_DT
             else:
                 self.q_cmd, self.qdot = self.follow.advance()
             self._sim_step()
@@ -298,7 +315,7 @@ class _ClosedLoop:
             return False
         for _ in range(self._charged_steps(res.latency_s)):
             self._sim_step()  # the arm holds while the first plan is made (the roadmap was built before)
-        self.planned_at = _relevant(names, poses, self.keep)
+        self.planned_at = np.asarray(poses)[:, :3, 3]
         self.follow = self._timed(res.configurations, res.time_steps)
         self.search_s = {"move": res.latency_s, "growth": res.latency_s}
         return True
@@ -307,39 +324,42 @@ class _ClosedLoop:
         return PlanFollower(plan_segments(configurations, time_steps, self.vmax, self.dt, self.s.speed, self.clock,
                                           self.accel, elapsed=elapsed), self.s.profile, int(time_steps[-1]), elapsed)
 
+    def _holding(self) -> bool:
+        """Whether the robot holds still: its plan ended before the new one arrived, or it is
+        where it must not go past (``stop_at``)."""
+        assert self.follow is not None
+        return self.follow.done or (self.stop_at is not None and self.follow.position >= self.stop_at)
+
     def _take_over_arrived_plan(self) -> bool:
-        """Switch to a plan that arrived once the robot is where it starts (or has passed it:
-        then the robot retraces the waypoints back to there, a motion it has just made).
-        Returns True when the new plan is already done (nothing left to execute)."""
+        """Switch to a plan that arrived once the robot is where it starts (it holds there until
+        then). Returns True when the new plan is already done (nothing left to execute)."""
         pending, follow = self.pending, self.follow
         assert follow is not None
         if pending is None or self.step < pending["arrive"] or not (follow.done or follow.position >= pending["pos"]):
             return False
         new, pos = pending["res"], pending["pos"]
-        self.pending = None
-        back = follow.back_to(pos, self.q_cmd)
-        confs = np.concatenate([np.asarray(back[:-1]).reshape(-1, len(self.q_cmd)), new.configurations])
-        steps = np.concatenate([np.full(len(back) - 1, new.time_steps[0]), new.time_steps])
-        self.follow = self._timed(confs, steps, follow.elapsed_at(pos))
+        self.pending, self.stop_at = None, None
+        self.follow = self._timed(new.configurations, new.time_steps, follow.elapsed_at(pos))
         self.result.switches += 1
-        self.result.retraced += len(back) - 1
         return self.follow.done
 
     def _sense(self) -> None:
-        """Read the landmarks: a task landmark that moved asks for a plan; otherwise, while the
-        roadmap still grows for a far move, a growth round and a better plan (anytime)."""
+        """Read the landmarks: one that moved asks for a plan; otherwise, while the roadmap still
+        grows for a far move, a growth round and a better plan (anytime); with neither, a robot
+        stopped before a blocked segment stops for good (``stopped``)."""
         s, result = self.s, self.result
         names, poses = self.world.sensed_landmarks()
-        now = _relevant(names, poses, self.keep)
+        now = np.asarray(poses)[:, :3, 3]
         assert self.planned_at is not None
-        if now.shape == self.planned_at.shape and np.abs(now - self.planned_at).max() <= s.replan_threshold:
-            if getattr(self.planner, "growth_pending", False) and result.n_replans < s.max_replans:
-                self._replan("growth")
-            return
-        if result.n_replans >= s.max_replans:
-            return
-        self.planned_at = now
-        self._replan("move", names, poses)
+        can_replan = result.n_replans < s.max_replans
+        if can_replan and _moved(now, self.planned_at, s.replan_threshold):
+            self.planned_at = now
+            self._replan("move", names, poses)
+        elif can_replan and getattr(self.planner, "growth_pending", False):
+            self._replan("growth")
+        elif self.stop_at is not None and self._holding():
+            result.stopped = (f"the path ahead is blocked and the planner found no other "
+                              f"({result.plan_statuses[-1]}): the arm stopped before it")
 
     def _charged_steps(self, wall_s: float) -> int:
         """Simulation steps that planner work of ``wall_s`` wall-clock seconds costs the world."""
@@ -355,7 +375,8 @@ class _ClosedLoop:
 
     def _replan(self, kind: str, names=None, poses=None) -> None:
         """A new plan, made now (wall clock) from where the robot is expected to be when it
-        arrives, the charged latency later; the robot follows the current plan meanwhile."""
+        arrives, the charged latency later, and no further than the old plan is still free; the
+        robot follows the current plan meanwhile, up to where the new one starts."""
         planner, result, follow = self.planner, self.result, self.follow
         assert follow is not None
         tic = time.perf_counter()
@@ -368,41 +389,45 @@ class _ClosedLoop:
             return
         update_s = time.perf_counter() - tic
         pos = follow.at_rest_after(follow.predict(self._forecast(kind, update_s)))  # it starts at rest
-        pos, res = self._plan_from_free_waypoint(pos)
+        if self.stop_at is not None:
+            pos = min(pos, self.stop_at)
+        blocked = self._first_blocked(follow.position, pos)
+        pos = pos if blocked is None else blocked
+        check_s = time.perf_counter() - tic - update_s
+        res = planner.plan(follow.q_at(pos), follow.step_at(pos))
+        if not res.ok:  # the robot goes on along the old plan, as far as it is free
+            tac = time.perf_counter()
+            blocked = self._first_blocked(pos, None) if blocked is None else blocked
+            check_s += time.perf_counter() - tac
         wall = time.perf_counter() - tic
         self.search_s[kind] = res.latency_s
         result.n_replans += 1
         result.replan_kind.append(kind)
         result.replan_steps.append([int(follow.step_at(follow.position)), int(follow.step_at(pos))])
         result.replan_update_ms.append(update_s * 1e3)
+        result.path_check_ms.append(check_s * 1e3)
         result.replan_ms.append(res.latency_s * 1e3)
         result.plan_statuses.append(res.status)
         result.edges_evaluated.append(res.n_edges_evaluated)
         result.charged_ms.append(charged_s(self.s.latency, wall) * 1e3)
         done_at = self.step + self._charged_steps(wall)
         if res.ok:
-            self.pending = {"arrive": done_at, "res": res, "pos": pos}
+            self.pending, self.stop_at = {"arrive": done_at, "res": res, "pos": pos}, pos
         else:  # nothing to take over; the next reading comes once the planner is free again
-            self.busy_until = done_at
+            self.busy_until, self.stop_at = done_at, blocked
 
-    def _plan_from_free_waypoint(self, pos):
-        """``(pos, plan)``: a plan from waypoint ``pos`` of the current plan or, when what was
-        sensed puts that waypoint in collision (a bowl moved onto the path ahead), from the
-        latest waypoint before it that is free, which the robot retraces to when the plan
-        arrives. Driving on to the blocked waypoint would hit what the planner has just seen."""
+    def _first_blocked(self, start, end) -> tuple[int, float] | None:
+        """The first position of the current plan from ``start`` to ``end`` (None: its end) where
+        a segment that now collides begins (``start`` itself when the rest of its segment does),
+        or None if all of it is free. Waits (a segment that does not move) are not checked again."""
         follow = self.follow
         assert follow is not None
-        q = follow.q_at(pos)
-        res = self.planner.plan(q, follow.step_at(pos))
-        k = pos[0]
-        while res.status == "start_in_collision" and k > 0:
-            k -= 1
-            before = follow.q_at((k, 0.0))
-            if np.array_equal(before, q):  # a wait at one waypoint: the same configuration
-                continue
-            q, pos = before, (k, 0.0)
-            res = self.planner.plan(q, follow.step_at(pos))
-        return pos, res
+        last = len(follow.segs) if end is None else end[0]
+        for i in range(start[0], last):
+            q0, q1 = follow.q_at(start) if i == start[0] else follow.segs[i][0], follow.segs[i][1]
+            if np.any(q0 != q1) and self.planner.segment_fn(q0, q1):
+                return start if i == start[0] else (i, 0.0)
+        return None
 
 
 def _settle_and_judge(world, contacts: _ContactLog, result: RunResult, s: ExecSettings, step: int,
@@ -426,6 +451,6 @@ def _settle_and_judge(world, contacts: _ContactLog, result: RunResult, s: ExecSe
         result.reason = f"collision with {', '.join(hits)}"
     elif result.fraction_in_bowl < s.success_fraction:
         result.reason = (f"only {result.fraction_in_bowl:.0%} of the particles in the bowl "
-                         f"(needs {s.success_fraction:.0%})")
+                         f"(needs {s.success_fraction:.0%})" + (f"; {result.stopped}" if result.stopped else ""))
     else:
         result.success, result.reason = True, "ok"

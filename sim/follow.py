@@ -3,8 +3,8 @@
 ``PlanFollower`` holds a plan's timed segments ``(q0, q1, duration, time_step)`` (from
 ``lfd.timing.plan_segments``) and the robot's position along them, ``(i, t)``: segment i, t
 seconds into it (``i == len``: done). It advances one simulation step at a time with the
-segment's velocity profile, predicts where the robot will be after a latency, and gives the
-waypoints back to an earlier position (``sim.execute`` switches plans with it).
+segment's velocity profile and predicts where the robot will be after a latency (``sim.execute``
+switches plans where the robot will be at rest).
 """
 
 from __future__ import annotations
@@ -88,10 +88,3 @@ class PlanFollower:
                 return spent
             spent += self.segs[k][2]
         return spent + self.elapsed0
-
-    def back_to(self, pos, q_now: np.ndarray) -> list[np.ndarray]:
-        """Waypoints from ``q_now`` (the current position) back along the plan to ``pos``."""
-        q_to = self.q_at(pos)
-        back = [q_now] + [self.segs[k][0] for k in range(min(self.i, len(self.segs) - 1), pos[0], -1)]
-        back.append(q_to)
-        return [q for j, q in enumerate(back) if j == 0 or np.any(q != back[j - 1])]

@@ -48,9 +48,10 @@ def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 
     Latencies, each ``{median, p95, mean}`` in ms: ``initial_ms`` and ``replan_ms`` are the searches
     alone (the paper's planning latency); ``build_ms`` is the first landmark update (the
     roadmap's construction) before the first plan, ``improve_ms`` the anytime re-plans after a
-    far move (the roadmap's growth and the search on it), and ``reaction_ms`` a re-plan's
-    landmark update (new step costs, new biased vertices after a far move) plus its search: the
-    time from sensing a move to holding the new plan. Runs logged before the update was timed
+    far move (the roadmap's growth, the old plan's check and the search on it), and
+    ``reaction_ms`` a re-plan's landmark update (new step costs, new biased vertices after a far
+    move), the old plan's check (``sim.execute``) and its search: the time from sensing a move
+    to holding the new plan. Runs logged before the update was timed
     have no ``build_ms``/``replan_update_ms`` and are left out of those two. A plan that was not
     found (no path, unreachable: an answer, often at once) is no planning latency and is left out
     of them all."""
@@ -62,9 +63,10 @@ def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 
         if len(r.get("replan_update_ms", ())) != len(r["replan_ms"]):
             continue  # logged before the update was timed
         kinds = r.get("replan_kind") or ["move"] * len(r["replan_ms"])
-        for kind, u, x, ok in zip(kinds, r["replan_update_ms"], r["replan_ms"], _found(r)[1:]):
+        checks = r.get("path_check_ms") or [0.0] * len(r["replan_ms"])  # (runs logged before the check)
+        for kind, u, c, x, ok in zip(kinds, r["replan_update_ms"], checks, r["replan_ms"], _found(r)[1:]):
             if ok:
-                (react if kind == "move" else improve).append(u + x)
+                (react if kind == "move" else improve).append(u + c + x)
     return {
         "tool_landmark": variant.label_tool, "env_landmark": variant.label_env,
         "success_rate": sum(bool(r["success"]) for r in runs) / (len(runs) + crashed) if runs or crashed
@@ -177,7 +179,7 @@ def format_table(results: dict, task: str, latency: str | None = None, cells: di
                      f"{_deg(v.get('tilt_error_deg')):>12}")
     lines.append("Plan, Replan and Reaction: medians, the Reaction's mean beside it; Plan and Replan: the search "
                  "alone (the paper's latency); Reaction: a re-plan with the "
-                 "landmark update before it (or the roadmap's growth, for the anytime re-plan after a far move); "
+                 "landmark update and the check of the plan being followed before it (or the roadmap's growth, for the anytime re-plan after a far move); "
                  f"the paper: {PAPER_LATENCY_MS.get(task, '-')} ms on 12 cores, a mean over 10 scenarios; Tilt error: the "
                  "tool's largest tilt against the demonstrations' mean, |median| / p95 in degrees")
     crashed = sum(v.get("crashed", 0) for v in results.values())

@@ -3,6 +3,7 @@ when it gives no plan. A scripted planner in a real PyBullet world, so the timin
 
 from __future__ import annotations
 
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -49,6 +50,7 @@ class _ScriptedPlanner:
         self.growth_pending = False
         self.calls: list[int] = []
         self.planned = False
+        self.segment_fn = lambda q1, q2: False  # nothing in its way
 
     def update_landmarks(self, names, poses, grow=True):
         pass
@@ -141,55 +143,130 @@ def test_the_bowl_moves_on_time_while_the_planner_is_busy(make_world):
 
 
 class _BlockedAheadPlanner(_ScriptedPlanner):
-    """A first plan home -> A -> B -> home; every later plan checks its start in the real world
-    (``collision_fn``) and answers 'start_in_collision' as the planner does, or a plan from
-    there straight home."""
+    """A first plan through ``waypoints`` (home first and last) at evenly spread time steps;
+    every later plan records its start, checked in the real world (``collision_fn``), and answers
+    'start_in_collision' as the planner does, else ``replan`` ("ok": from there to
+    ``then``; "no_path": none), after ``sleep_s`` of wall-clock time."""
 
-    def __init__(self, world, kin, A, B, collision_fn):
+    def __init__(self, world, kin, waypoints, fns, replan="ok", then=None, sleep_s=0.0):
         super().__init__(world, kin, "still", time_steps=24)
-        self.A, self.B, self.collision_fn = A, B, collision_fn
+        self.waypoints, self.collision_fn, self.segment_fn = np.stack(waypoints), fns.collision_fn, fns.segment_fn
+        self.replan, self.then, self.sleep_s = replan, then, sleep_s
         self.starts: list[tuple[np.ndarray, bool]] = []
 
     def plan(self, q, step):
         home = np.asarray(L.HOME_Q, dtype=float)
         if not self.planned:
             self.planned = True
-            return PlanResult("ok", np.stack([home, self.A, self.B, home]), np.array([0, 8, 16, 23]),
-                              np.arange(4), 1.0, 0, 0.001)
+            n = len(self.waypoints)
+            steps = np.round(np.linspace(0, 23, n)).astype(int)
+            return PlanResult("ok", self.waypoints, steps, np.arange(n), 1.0, 0, 0.001)
+        time.sleep(self.sleep_s)
         blocked = bool(self.collision_fn(q))
         self.starts.append((np.array(q), blocked))
-        if blocked:
-            empty = np.zeros((0, 7))
-            return PlanResult("start_in_collision", empty, np.zeros(0, int), np.zeros(0, int), np.inf, 0, 0.001,
-                              message="start")
-        return PlanResult("ok", np.stack([q, home]), np.array([step, 23]), np.array([-1, 0]), 1.0, 0, 0.001)
+        empty = np.zeros((0, 7))
+        if blocked or self.replan == "no_path":
+            status = "start_in_collision" if blocked else "no_path"
+            return PlanResult(status, empty, np.zeros(0, int), np.zeros(0, int), np.inf, 0, 0.001, message="none")
+        then = home if self.then is None else self.then
+        return PlanResult("ok", np.stack([q, then]), np.array([step, 23]), np.array([-1, 0]), 1.0, 0, 0.001)
 
 
-def test_a_bowl_moved_onto_the_path_ahead_is_not_driven_into(make_world):
-    """The bowl moved onto the next waypoint of the plan being followed: the re-plan from there
-    answers 'start_in_collision', and the robot used to follow its old plan into the bowl (a
-    powder scene with another task point, 1300045, failed so). Now the re-plan starts at the
-    latest free waypoint before it, the robot goes back there, and nothing is touched."""
+class _Commands:
+    """The world, with every arm command recorded after the bowl's move."""
+
+    def __init__(self, world):
+        self._world, self.after_move = world, None
+
+    def move_object(self, name, xy):
+        self.after_move = []
+        self._world.move_object(name, xy)
+
+    def command_q(self, q, **kw):
+        if self.after_move is not None:
+            self.after_move.append(np.array(q))
+        self._world.command_q(q, **kw)
+
+    def __getattr__(self, name):
+        return getattr(self._world, name)
+
+
+@pytest.fixture(scope="module")
+def blocked_scene(make_world):
+    """A powder world, its collision callables, and waypoints A and B (the gripper 30 cm below A)
+    with B where a moved bowl's floor makes it collide: ``(world, fns, A, B, bowl_at_B, bowl)``."""
     from sim.collision import make_collision_fns
-    from sim.scenarios import Scenario
 
     world = make_world("powder", n_particles=0)
-    kin = KinematicModel.from_spec()
     home = np.asarray(L.HOME_Q, dtype=float)
-    A, B = home + [0.4, -0.3, 0, 0, 0, 0, 0], home + [0.4, 0, 0.4, 0, 0, 0, 0]  # B 30 cm below A
+    A, B = home + [0.4, -0.3, 0, 0, 0, 0, 0], home + [0.4, 0, 0.4, 0, 0, 0, 0]
     world.set_q(B)
-    gripper_at_B = world.T_world_gripper()[:3, 3]
+    gripper_at_B = tuple(world.T_world_gripper()[:3, 3])
     world.set_q(home)
     bowl = tuple(world.sensed_landmarks()[1][0][:2, 3])
-    fns = make_collision_fns(world)
-    # the bowl's floor (its base frame) where the gripper will be at B: B collides, A does not;
-    # it moves at step 8 of 24 (a share of 0.34), as the robot leaves A for B
-    sc = Scenario(task="powder", seed=0, placements={}, bowl_after=tuple(gripper_at_B), move_at=0.34)
-    planner = _BlockedAheadPlanner(world, kin, A, B, fns.collision_fn)
+    return world, make_collision_fns(world), A, B, gripper_at_B, bowl
+
+
+def test_a_bowl_moved_onto_the_segment_being_driven_stops_the_arm_on_it(blocked_scene):
+    """The bowl moved onto B as the robot leaves A for B. The re-plan used to start at B (the
+    plan's next waypoint) and, finding B in collision, the robot followed its old plan into the
+    bowl (a powder scene with another task point, 1300045, failed so). Now the segment ahead is
+    checked: the arm stops where it is, the plan starts there, and nothing is touched."""
+    from sim.scenarios import Scenario
+
+    world, fns, A, B, bowl_at_B, bowl = blocked_scene
+    sc = Scenario(task="powder", seed=0, placements={}, bowl_after=bowl_at_B, move_at=0.34)  # step 8 of 24: A->B
+    planner = _BlockedAheadPlanner(world, KinematicModel.from_spec(), [L.HOME_Q, A, B, L.HOME_Q], fns)
     result = execute_plan(world, planner, sc, ExecSettings(latency="none", pace="fastest", settle_s=0.0))
     world.move_object("bowl", bowl)
-    blocked = [b for _, b in planner.starts]
-    assert blocked[:2] == [True, False], (blocked, result.contacts)  # B first, then the waypoint before it
-    assert np.array_equal(planner.starts[0][0], B) and np.array_equal(planner.starts[1][0], A)
-    assert result.contacts == [] and result.retraced >= 1, (result.contacts, result.retraced)
-    assert result.plan_statuses[1] == "ok"
+    (start, blocked), = planner.starts
+    assert not blocked and result.plan_statuses == ["ok", "ok"], result.plan_statuses
+    between = (start - A) / (B - A + 1e-12)  # the same share of A -> B on the joints that move
+    assert 0 < between[1] < 1 and np.isclose(between[1], between[2]), between  # on A -> B, short of B
+    assert result.contacts == [] and result.stopped == "", (result.contacts, result.stopped)
+
+
+def test_a_re_plan_that_finds_no_path_stops_the_arm_before_the_blocked_segment(blocked_scene):
+    """The bowl moved onto B, two waypoints ahead, and the re-plan (from the next waypoint, A2)
+    finds no path. The robot used to go on along its old plan, into the bowl; now the rest of the
+    old plan is checked, the arm stops at A2, before the segment that collides, and the run ends
+    there ('stopped'), without a touch."""
+    from sim.scenarios import Scenario
+
+    world, fns, A, B, bowl_at_B, bowl = blocked_scene
+    A2 = A + [0, 0.1, 0.1, 0, 0, 0, 0]
+    sc = Scenario(task="powder", seed=0, placements={}, bowl_after=bowl_at_B, move_at=0.25)  # step 6: A -> A2
+    planner = _BlockedAheadPlanner(world, KinematicModel.from_spec(), [L.HOME_Q, A, A2, B, L.HOME_Q], fns,
+                                   replan="no_path")
+    result = execute_plan(world, planner, sc, ExecSettings(latency="none", pace="fastest", settle_s=0.0))
+    q_end = world.get_q()
+    world.move_object("bowl", bowl_at_B)
+    assert not fns.segment_fn(A, A2) and fns.segment_fn(A2, B)  # the scene is what the test says
+    world.move_object("bowl", bowl)
+    assert result.plan_statuses == ["ok", "no_path"] and np.allclose(planner.starts[0][0], A2)
+    assert result.contacts == [], result.contacts
+    assert "blocked" in result.stopped and "blocked" in result.reason, (result.stopped, result.reason)
+    assert np.abs(q_end - A2).max() < 0.02, q_end - A2
+
+
+def test_the_arm_holds_where_a_late_plan_starts_instead_of_driving_on(blocked_scene):
+    """A re-plan that arrives later than forecast (its search took 1.5 s of wall clock, charged,
+    after the last one took a millisecond): the robot used to drive on along its old plan and
+    retrace its way back to where the new plan starts. Now it holds there, at rest, until the
+    plan arrives: it never moves along the old plan's B -> home (joint 0 going back)."""
+    from sim.scenarios import Scenario
+
+    world, fns, A, B, _, bowl = blocked_scene
+    C = B + [0, 0, 0, 0, 0, 0.3, 0]  # the new plan turns the wrist at B
+    sc = Scenario(task="powder", seed=0, placements={}, bowl_after=(bowl[0] - 0.1, bowl[1]), move_at=0.34)
+    commands = _Commands(world)
+    planner = _BlockedAheadPlanner(commands, KinematicModel.from_spec(), [L.HOME_Q, A, B, L.HOME_Q], fns,
+                                   then=C, sleep_s=1.5)
+    result = execute_plan(commands, planner, sc, ExecSettings(latency="measured", pace="fastest", settle_s=0.0))
+    world.move_object("bowl", bowl)
+    assert result.plan_statuses == ["ok", "ok"] and result.switches == 1, result.plan_statuses
+    assert np.allclose(planner.starts[0][0], B), planner.starts[0][0] - B  # the next waypoint, forecast
+    assert commands.after_move, "the bowl never moved"
+    j0 = np.array([q[0] for q in commands.after_move])
+    assert np.allclose(j0, A[0]), j0.min() - A[0]  # never along B -> home
+    assert np.allclose(commands.after_move[-1], C) and result.held_s > 0.2, result.held_s
