@@ -270,3 +270,46 @@ def test_the_arm_holds_where_a_late_plan_starts_instead_of_driving_on(blocked_sc
     j0 = np.array([q[0] for q in commands.after_move])
     assert np.allclose(j0, A[0]), j0.min() - A[0]  # never along B -> home
     assert np.allclose(commands.after_move[-1], C) and result.held_s > 0.2, result.held_s
+
+
+class _MovesAt(_CountingWorld):
+    """The real world, where ``name`` moves to ``where`` at physics step ``at`` (not a scene's
+    bowl move: an object of the caller's world that the task model does not use)."""
+
+    def __init__(self, world, name, where, at):
+        super().__init__(world)
+        self.name, self.where, self.at = name, where, at
+
+    def step(self, n=1):
+        super().step(n)
+        if self.steps >= self.at and self.name is not None:
+            self._world.move_object(self.name, self.where)
+            self.name = None
+
+
+def test_a_distractor_moved_onto_the_path_asks_for_a_plan_and_is_not_hit(make_world):
+    """The pour's vase, a sensed landmark the task model does not keep (only the bowl), is moved
+    onto B while the robot drives from A to B. Only the task's landmarks used to ask for a plan,
+    so the robot drove on into the vase; any sensed landmark's move now does, and the arm stops
+    short of it (the check of the plan being followed)."""
+    from sim.collision import make_collision_fns
+
+    base = make_world("pour", n_particles=0)
+    home = np.asarray(L.HOME_Q, dtype=float)
+    A, B = home + [0.4, -0.3, 0, 0, 0, 0, 0], home + [0.4, 0, 0.4, 0, 0, 0, 0]
+    base.set_q(B)
+    vase_at_B = tuple(base.T_world_gripper()[:2, 3])
+    base.set_q(home)
+    vase = tuple(base.object_pose("vase")[:2, 3])
+    fns = make_collision_fns(base)
+    planner = _BlockedAheadPlanner(base, KinematicModel.from_spec(), [L.HOME_Q, A, B, L.HOME_Q], fns)
+    assert planner.model.landmark_names == ("bowl",)
+    s = ExecSettings(latency="none", pace="fastest", settle_s=0.0)
+    first = execute_plan(_CountingWorld(base), _BlockedAheadPlanner(base, KinematicModel.from_spec(),
+                                                                   [L.HOME_Q, A, B, L.HOME_Q], fns), settings=s)
+    world = _MovesAt(base, "vase", vase_at_B, at=int(0.5 * first.duration_s / L.SIM_DT))  # on A -> B
+    result = execute_plan(world, planner, settings=s)
+    assert fns.segment_fn(A, B) and not fns.collision_fn(A)  # the vase is where the test says
+    base.move_object("vase", vase)
+    assert result.n_replans >= 1 and result.plan_statuses[1] == "ok", result.plan_statuses
+    assert result.contacts == [], result.contacts
