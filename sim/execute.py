@@ -25,18 +25,20 @@ where it starts.
 
 The old plan up to that waypoint is checked against what was just sensed (the planner's
 ``segment_fn``, the check its own edges had): when a segment ahead now collides (a bowl moved
-onto the path), the new plan starts where the free part ends -- the start of that segment, or
-where the robot is if it is on it -- and the robot stops there. A re-plan that finds no path
-leaves the robot on its old plan only as far as the old plan is still free (the rest is checked
-then); it stops before the first blocked segment, and when the planner has nothing more to try
-(no landmark moved, no growth round pending) the run ends there (``stopped``), rather than driving
-into what was seen. While a plan is on its way no new one is asked for, and
+onto the path), the new plan starts where the free part ends -- the start of that segment or, if
+the robot is on it, where the robot is once the check is done (charged like the rest: with the
+world frozen an emergency stop on the spot) -- and the robot stops there. A re-plan that finds
+no path leaves the robot on its old plan only if the rest of it is free; otherwise the robot
+stays where the failed plan was asked from, and when the planner has nothing more to try (no
+landmark moved, no growth round pending) the run ends there (``stopped``) rather than drive into
+what was seen. With the re-plans used up (``max_replans``) a move still has the old plan checked,
+and the robot stops before what blocks it. While a plan is on its way no new one is asked for, and
 planner work that gave no plan (a re-plan that found none, a growth round that added no vertex)
 keeps the planner busy for its charged time just the same. After a far move the landmark update answers on the current
 roadmap and the biased regrowth (``TaskPlanner.grow``) runs a round at a time, each round (a
 fraction of a second to a second) followed by a re-plan at the next reading, charged the same way:
 the robot executes the first answer while the roadmap grows (anytime). Every re-plan is recorded: ``replan_kind`` ("move" or "growth"), ``replan_update_ms``
-(landmark update or growth), ``path_check_ms`` (the old plan's check), ``replan_ms`` (the search,
+(landmark update or growth), ``path_check_ms`` (the old plan's checks), ``replan_ms`` (the search,
 ``PlanResult.latency_s``, what the paper reports) and ``charged_ms`` (the simulated time it cost);
 growth rounds that added no vertex (no re-plan followed) in ``idle_growth_ms``, the simulated time each cost. ``build_ms``
 is the first update (the roadmap's construction), before the first plan's ``initial_ms``; the
@@ -136,7 +138,9 @@ class RunResult:
     idle_growth_ms: list = field(default_factory=list)  # simulated time of each growth round that added no vertex
     replan_kind: list = field(default_factory=list)  # each re-plan's cause: "move" or "growth" (anytime)
     replan_steps: list = field(default_factory=list)  # each re-plan's [task step asked at, step it starts from]
-    path_check_ms: list = field(default_factory=list)  # the old plan's check before each re-plan (and after a failed one)
+    # the plan being followed checked at each re-plan (before it, and after it when it found none),
+    # then at each move sensed once the re-plans are used up (they never come back)
+    path_check_ms: list = field(default_factory=list)
     switches: int = 0  # re-plans that arrived and took over
     held_s: float = 0.0  # simulated time the arm held at rest waiting for a plan (or for good: ``stopped``)
     stopped: str = ""  # why the arm stopped short of its plan's end ("": it did not)
@@ -243,6 +247,8 @@ class _ClosedLoop:
         self.follow: PlanFollower | None = None
         self.pending: dict | None = None  # a plan on its way: {"arrive": sim step, "res", "pos": where it starts}
         self.stop_at: tuple[int, float] | None = None  # a position of the plan the robot must not pass
+        self.release_at: int | None = None  # sim step from which ``stop_at`` no longer holds
+        self.idle_held = 0  # growth rounds that added no vertex while the arm was held
         self.busy_until = 0  # sim step until which the planner works on something that gave no plan
         self.search_s: dict = {}  # the last search's time of each kind of re-plan
         self.planned_at: np.ndarray | None = None  # (Z, 3) landmark positions the current plan is for
@@ -326,8 +332,11 @@ class _ClosedLoop:
 
     def _holding(self) -> bool:
         """Whether the robot holds still: its plan ended before the new one arrived, or it is
-        where it must not go past (``stop_at``)."""
+        where it must not go past (``stop_at``, unless released: a re-plan found no path and the
+        old plan is free ahead)."""
         assert self.follow is not None
+        if self.release_at is not None and self.step >= self.release_at:
+            self.stop_at = self.release_at = None
         return self.follow.done or (self.stop_at is not None and self.follow.position >= self.stop_at)
 
     def _take_over_arrived_plan(self) -> bool:
@@ -344,22 +353,30 @@ class _ClosedLoop:
         return self.follow.done
 
     def _sense(self) -> None:
-        """Read the landmarks: one that moved asks for a plan; otherwise, while the roadmap still
-        grows for a far move, a growth round and a better plan (anytime); with neither, a robot
-        stopped before a blocked segment stops for good (``stopped``)."""
+        """Read the landmarks: one that moved asks for a plan (with re-plans used up, only the
+        plan being followed is checked); otherwise, while the roadmap still grows for a far move,
+        a growth round and a better plan (anytime); with neither, an arm held before a blocked
+        segment stops for good (``stopped``). While the arm is held, growth rounds that add no
+        vertex count against ``max_replans`` too, so that a growth that never ends cannot hold
+        it forever."""
         s, result = self.s, self.result
+        held = self._holding()  # (first: a hold that has ended is released before any re-plan)
         names, poses = self.world.sensed_landmarks()
         now = np.asarray(poses)[:, :3, 3]
         assert self.planned_at is not None
-        can_replan = result.n_replans < s.max_replans
-        if can_replan and _moved(now, self.planned_at, s.replan_threshold):
+        moved = _moved(now, self.planned_at, s.replan_threshold)
+        if moved:
             self.planned_at = now
+        can_replan = result.n_replans + self.idle_held < s.max_replans
+        if moved and can_replan:
             self._replan("move", names, poses)
+        elif moved:
+            self._check_only()
         elif can_replan and getattr(self.planner, "growth_pending", False):
             self._replan("growth")
-        elif self.stop_at is not None and self._holding():
-            result.stopped = (f"the path ahead is blocked and the planner found no other "
-                              f"({result.plan_statuses[-1]}): the arm stopped before it")
+        elif self.stop_at is not None and held:
+            result.stopped = (f"the plan being followed is blocked ahead and no other was found "
+                              f"({result.plan_statuses[-1]}): the arm stopped")
 
     def _charged_steps(self, wall_s: float) -> int:
         """Simulation steps that planner work of ``wall_s`` wall-clock seconds costs the world."""
@@ -376,7 +393,7 @@ class _ClosedLoop:
     def _replan(self, kind: str, names=None, poses=None) -> None:
         """A new plan, made now (wall clock) from where the robot is expected to be when it
         arrives, the charged latency later, and no further than the old plan is still free; the
-        robot follows the current plan meanwhile, up to where the new one starts."""
+        robot follows the current plan meanwhile, up to where the new one starts, and holds there."""
         planner, result, follow = self.planner, self.result, self.follow
         assert follow is not None
         tic = time.perf_counter()
@@ -386,18 +403,18 @@ class _ClosedLoop:
             idle_s = time.perf_counter() - tic
             result.idle_growth_ms.append(charged_s(self.s.latency, idle_s) * 1e3)
             self.busy_until = self.step + self._charged_steps(idle_s)
+            self.idle_held += self._holding()
             return
         update_s = time.perf_counter() - tic
         pos = follow.at_rest_after(follow.predict(self._forecast(kind, update_s)))  # it starts at rest
         if self.stop_at is not None:
             pos = min(pos, self.stop_at)
-        blocked = self._first_blocked(follow.position, pos)
-        pos = pos if blocked is None else blocked
+        pos, blocked = self._stop_before_blocked(pos, tic)
         check_s = time.perf_counter() - tic - update_s
         res = planner.plan(follow.q_at(pos), follow.step_at(pos))
-        if not res.ok:  # the robot goes on along the old plan, as far as it is free
+        if not res.ok and not blocked:  # is the old plan still free beyond? (then the robot goes on)
             tac = time.perf_counter()
-            blocked = self._first_blocked(pos, None) if blocked is None else blocked
+            blocked = self._first_blocked(pos, None) is not None
             check_s += time.perf_counter() - tac
         wall = time.perf_counter() - tic
         self.search_s[kind] = res.latency_s
@@ -411,15 +428,44 @@ class _ClosedLoop:
         result.edges_evaluated.append(res.n_edges_evaluated)
         result.charged_ms.append(charged_s(self.s.latency, wall) * 1e3)
         done_at = self.step + self._charged_steps(wall)
+        self.stop_at, self.release_at = pos, None  # the robot holds at the plan's start meanwhile
         if res.ok:
-            self.pending, self.stop_at = {"arrive": done_at, "res": res, "pos": pos}, pos
-        else:  # nothing to take over; the next reading comes once the planner is free again
-            self.busy_until, self.stop_at = done_at, blocked
+            self.pending = {"arrive": done_at, "res": res, "pos": pos}
+        else:  # no plan: the robot stays there if the old plan is blocked ahead, else goes on once told
+            self.busy_until = done_at
+            self.release_at = None if blocked else done_at
+
+    def _stop_before_blocked(self, pos, tic: float) -> tuple[tuple[int, float], bool]:
+        """``(pos, blocked)``: ``pos``, or where the robot must stop instead because the plan
+        being followed now collides before it: the start of the first blocked segment or, if
+        the robot is on it, where the robot is when the check is done (``tic``: when the work
+        began, charged; with ``latency="none"``, where it is now: an emergency stop)."""
+        follow = self.follow
+        assert follow is not None
+        blocked = self._first_blocked(follow.position, pos)
+        if blocked is None:
+            return pos, False
+        told = follow.predict(charged_s(self.s.latency, time.perf_counter() - tic))  # where the news finds it
+        return min(max(blocked, told), pos), True
+
+    def _check_only(self) -> None:
+        """With re-plans used up, a move still has the plan being followed checked: the robot
+        stops before a segment that now collides (``stopped`` once it is held there)."""
+        tic = time.perf_counter()
+        assert self.follow is not None
+        end = (len(self.follow.segs), 0.0)
+        pos, blocked = self._stop_before_blocked(end, tic)
+        wall = time.perf_counter() - tic
+        self.result.path_check_ms.append(wall * 1e3)
+        self.busy_until = self.step + self._charged_steps(wall)
+        if blocked:
+            self.stop_at, self.release_at = pos, None
 
     def _first_blocked(self, start, end) -> tuple[int, float] | None:
-        """The first position of the current plan from ``start`` to ``end`` (None: its end) where
-        a segment that now collides begins (``start`` itself when the rest of its segment does),
-        or None if all of it is free. Waits (a segment that does not move) are not checked again."""
+        """The first position of the current plan from ``start`` to ``end`` (None: its end; a
+        waypoint, or ``start`` itself) where a segment that now collides begins (``start`` itself
+        when the rest of its segment does), or None if all of it is free. Waits (a segment that
+        does not move) are not checked again."""
         follow = self.follow
         assert follow is not None
         last = len(follow.segs) if end is None else end[0]

@@ -211,19 +211,25 @@ def test_a_bowl_moved_onto_the_segment_being_driven_stops_the_arm_on_it(blocked_
     """The bowl moved onto B as the robot leaves A for B. The re-plan used to start at B (the
     plan's next waypoint) and, finding B in collision, the robot followed its old plan into the
     bowl (a powder scene with another task point, 1300045, failed so). Now the segment ahead is
-    checked: the arm stops where it is, the plan starts there, and nothing is touched."""
+    checked: the arm stops on it, short of B, the plan starts there, and nothing is touched. The
+    stop comes when the check is done: at once with the world frozen, 0.3 s of motion later
+    with a fixed latency of 0.3 s (every piece of planner work costs that much)."""
     from sim.scenarios import Scenario
 
     world, fns, A, B, bowl_at_B, bowl = blocked_scene
     sc = Scenario(task="powder", seed=0, placements={}, bowl_after=bowl_at_B, move_at=0.34)  # step 8 of 24: A->B
-    planner = _BlockedAheadPlanner(world, KinematicModel.from_spec(), [L.HOME_Q, A, B, L.HOME_Q], fns)
-    result = execute_plan(world, planner, sc, ExecSettings(latency="none", pace="fastest", settle_s=0.0))
-    world.move_object("bowl", bowl)
-    (start, blocked), = planner.starts
-    assert not blocked and result.plan_statuses == ["ok", "ok"], result.plan_statuses
-    between = (start - A) / (B - A + 1e-12)  # the same share of A -> B on the joints that move
-    assert 0 < between[1] < 1 and np.isclose(between[1], between[2]), between  # on A -> B, short of B
-    assert result.contacts == [] and result.stopped == "", (result.contacts, result.stopped)
+    along = {}
+    for latency in ("none", 0.3):
+        planner = _BlockedAheadPlanner(world, KinematicModel.from_spec(), [L.HOME_Q, A, B, L.HOME_Q], fns)
+        result = execute_plan(world, planner, sc, ExecSettings(latency=latency, pace="fastest", settle_s=0.0))
+        world.move_object("bowl", bowl)
+        (start, blocked), = planner.starts
+        assert not blocked and result.plan_statuses == ["ok", "ok"] and result.switches == 1, result.plan_statuses
+        share = (start - A) / (B - A + 1e-12)  # the same share of A -> B on the joints that move
+        assert np.isclose(share[1], share[2]), share  # on A -> B
+        along[latency] = share[1]
+        assert result.contacts == [] and result.stopped == "", (result.contacts, result.stopped)
+    assert 0 < along["none"] < along[0.3] < 1, along  # short of B, later with the latency
 
 
 def test_a_re_plan_that_finds_no_path_stops_the_arm_before_the_blocked_segment(blocked_scene):
@@ -247,6 +253,24 @@ def test_a_re_plan_that_finds_no_path_stops_the_arm_before_the_blocked_segment(b
     assert result.contacts == [], result.contacts
     assert "blocked" in result.stopped and "blocked" in result.reason, (result.stopped, result.reason)
     assert np.abs(q_end - A2).max() < 0.02, q_end - A2
+
+
+def test_with_re_plans_used_up_a_move_onto_the_path_still_stops_the_arm(blocked_scene):
+    """``max_replans=0``: no plan is asked for, but the plan being followed is still checked when
+    the bowl moves onto B, and the arm stops on A -> B instead of driving into it."""
+    from sim.scenarios import Scenario
+
+    world, fns, A, B, bowl_at_B, bowl = blocked_scene
+    sc = Scenario(task="powder", seed=0, placements={}, bowl_after=bowl_at_B, move_at=0.34)
+    planner = _BlockedAheadPlanner(world, KinematicModel.from_spec(), [L.HOME_Q, A, B, L.HOME_Q], fns)
+    result = execute_plan(world, planner, sc, ExecSettings(latency="none", pace="fastest", settle_s=0.0,
+                                                           max_replans=0))
+    q_end = world.get_q()
+    world.move_object("bowl", bowl)
+    assert result.n_replans == 0 and planner.starts == [] and len(result.path_check_ms) == 1
+    assert result.contacts == [] and "blocked" in result.stopped, (result.contacts, result.stopped)
+    share = (q_end - A) / (B - A + 1e-12)
+    assert 0 < share[1] < 1, share
 
 
 def test_the_arm_holds_where_a_late_plan_starts_instead_of_driving_on(blocked_scene):
