@@ -375,8 +375,9 @@ class _ClosedLoop:
         elif can_replan and getattr(self.planner, "growth_pending", False):
             self._replan("growth")
         elif self.stop_at is not None and held:
-            result.stopped = (f"the plan being followed is blocked ahead and no other was found "
-                              f"({result.plan_statuses[-1]}): the arm stopped")
+            why = (f"no other plan was found ({result.plan_statuses[-1]})" if can_replan
+                   else f"the re-plans are used up (max_replans={s.max_replans})")
+            result.stopped = f"the plan being followed is blocked ahead and {why}: the arm stopped"
 
     def _charged_steps(self, wall_s: float) -> int:
         """Simulation steps that planner work of ``wall_s`` wall-clock seconds costs the world."""
@@ -403,7 +404,7 @@ class _ClosedLoop:
             idle_s = time.perf_counter() - tic
             result.idle_growth_ms.append(charged_s(self.s.latency, idle_s) * 1e3)
             self.busy_until = self.step + self._charged_steps(idle_s)
-            self.idle_held += self._holding()
+            self.idle_held += int(self._holding())
             return
         update_s = time.perf_counter() - tic
         pos = follow.at_rest_after(follow.predict(self._forecast(kind, update_s)))  # it starts at rest

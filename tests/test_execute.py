@@ -251,7 +251,7 @@ def test_a_re_plan_that_finds_no_path_stops_the_arm_before_the_blocked_segment(b
     world.move_object("bowl", bowl)
     assert result.plan_statuses == ["ok", "no_path"] and np.allclose(planner.starts[0][0], A2)
     assert result.contacts == [], result.contacts
-    assert "blocked" in result.stopped and "blocked" in result.reason, (result.stopped, result.reason)
+    assert "no other plan was found (no_path)" in result.stopped and result.stopped in result.reason, result.reason
     assert np.abs(q_end - A2).max() < 0.02, q_end - A2
 
 
@@ -268,7 +268,7 @@ def test_with_re_plans_used_up_a_move_onto_the_path_still_stops_the_arm(blocked_
     q_end = world.get_q()
     world.move_object("bowl", bowl)
     assert result.n_replans == 0 and planner.starts == [] and len(result.path_check_ms) == 1
-    assert result.contacts == [] and "blocked" in result.stopped, (result.contacts, result.stopped)
+    assert result.contacts == [] and "used up" in result.stopped, (result.contacts, result.stopped)
     share = (q_end - A) / (B - A + 1e-12)
     assert 0 < share[1] < 1, share
 
