@@ -52,6 +52,10 @@ from lfd.planning.stepcost import StepCost, SummedStepCost
 __all__ = ["BLOCKED", "FREE", "UNKNOWN", "EdgeStore"]
 
 UNKNOWN, FREE, BLOCKED = 0, 1, 2
+# s: the default spacing of an edge's quadrature nodes is the model's sampling interval, but no
+# finer than this (the pour's 25 Hz): a model learned from 1 kHz recordings would otherwise
+# prepare 40 times more nodes per edge (a powder roadmap at dt = 1 ms outgrew 22 GB of memory)
+MIN_QUAD_DT = 0.04
 
 
 def _cat(parts: list[tuple[torch.Tensor, ...] | None]) -> tuple[torch.Tensor, ...] | None:
@@ -108,7 +112,8 @@ class EdgeStore:
     step_cost : a ``lfd.planning.stepcost.StepCost``.
     stay : (T,) cost of one sampling interval spent in step t (``-log p(t | t)``, inf = forbidden).
     dt : sampling interval (s); vmax : (d,) joint velocity limits; quad_dt : time between
-    quadrature nodes (default dt).
+    quadrature nodes (default dt, or ``MIN_QUAD_DT`` if dt is shorter: the mean cost along an
+    edge needs nodes as fine as its motion, not as the recordings' rate).
     keypoint_fn : optional ``Q (N, d) -> (N, K, 3)`` points swept by the robot (for the balls
         of ``invalidate``; without it every edge is near every ball).
     sweep_margin : m added around the keypoints' box of an edge.
@@ -123,7 +128,7 @@ class EdgeStore:
         self.vmax = np.asarray(vmax, dtype=float).reshape(-1)
         if not self.dt > 0 or self.vmax.shape != (roadmap.d,) or not np.all(self.vmax > 0):
             raise ValueError(f"Expected dt > 0 and vmax ({roadmap.d},) > 0, got {dt}, {vmax}")
-        self.quad_dt = float(quad_dt or dt)
+        self.quad_dt = float(quad_dt) if quad_dt else max(self.dt, MIN_QUAD_DT)
         self.keypoint_fn, self.sweep_margin = keypoint_fn, float(sweep_margin)
         self.ends = np.empty((0, 2), dtype=np.int64)  # (E, 2)
         self.tau = np.empty(0)
