@@ -6,21 +6,24 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["LATENCIES", "charged_s", "parse_latency"]
+__all__ = ["LATENCIES", "MAX_LATENCY_S", "charged_s", "parse_latency"]
 
 LATENCIES = ("measured", "none")
+MAX_LATENCY_S = 60.0  # a fixed latency longer than any task (the arm would hold that long for each plan)
 
 
 def parse_latency(value) -> str | float:
-    """``"measured"``, ``"none"`` or a fixed latency in seconds (a number, or its text) >= 0."""
+    """``"measured"``, ``"none"`` or a fixed latency in seconds (a number, or its text) in
+    ``[0, MAX_LATENCY_S]``."""
     if isinstance(value, str) and value in LATENCIES:
         return value
     try:
         x = float(value)
     except (TypeError, ValueError):
         raise ValueError(f"latency must be 'measured', 'none' or seconds >= 0, got {value!r}") from None
-    if not (math.isfinite(x) and x >= 0):
-        raise ValueError(f"latency must be 'measured', 'none' or seconds >= 0, got {value!r}")
+    if not (math.isfinite(x) and 0 <= x <= MAX_LATENCY_S):
+        raise ValueError(f"latency must be 'measured', 'none' or seconds in [0, {MAX_LATENCY_S:g}] "
+                         f"(a plan that takes longer than a task), got {value!r}")
     return x
 
 

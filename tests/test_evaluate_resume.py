@@ -221,8 +221,9 @@ def test_runs_of_another_latency_mode_are_run_again(tmp_path, models, monkeypatc
     monkeypatch.setattr(ev, "run_one", third)
     ev.evaluate(replace(_settings(), latency="none"), out, models, resume=True)
     assert third.calls == [(old[0]["variant"], old[0]["scenario"])]
-    with pytest.raises(ValueError, match="latency must be"):
-        replace(_settings(), latency="forever")
+    for bad in ("forever", "1e300", 61):  # (1e300 s of simulated holding ran for ever)
+        with pytest.raises(ValueError, match="latency must be"):
+            replace(_settings(), latency=bad)
     assert replace(_settings(), latency=0.5).latency == "0.5"
 
 
