@@ -174,6 +174,11 @@ def test_the_urdf_is_read_without_the_parsers_complaints(tmp_path, capfd):
     ('lower="-1.70167993878"', 'lower="abc"', "limit lower='abc' is not a number"),  # was a ValueError traceback
     ('lower="-1.70167993878"', 'lower="nan"', "limit lower is NaN"),  # switched the limit check off
     ('lower="-1.70167993878"', 'lower="2.5"', "lower limit 2.5 is above upper"),
+    # a NaN in a joint's origin made every pose NaN: learning failed with a Cholesky message, IK raised
+    ('rpy="1.57079632679 0 1.57079632679" xyz="0.102 0 0"', 'rpy="1.57079632679 0 1.57079632679" xyz="nan 0 0"',
+     "origin xyz='nan 0 0' is not three finite numbers"),  # (right_e0, the first joint with that origin)
+    ('rpy="1.57079632679 0 1.57079632679" xyz="0.102 0 0"', 'rpy="1.57 0" xyz="0.102 0 0"',
+     "origin rpy='1.57 0' is not three finite numbers"),
 ])
 def test_a_urdf_with_bad_limits_is_refused(tmp_path, old, new, fragment):
     with pytest.raises(KinematicsError, match=re.escape(fragment)):

@@ -43,12 +43,24 @@ def _kinematic_urdf(root: ET.Element) -> bytes:
     return ET.tostring(out)
 
 
+def _three_finite(text: str, what: str) -> list[float]:
+    """The three finite numbers of a URDF attribute; ``KinematicsError`` naming ``what`` otherwise."""
+    try:
+        v = [float(x) for x in text.split()]
+    except ValueError:
+        v = []
+    if len(v) != 3 or not all(math.isfinite(x) for x in v):
+        raise KinematicsError(f"{what} is not three finite numbers")
+    return v
+
+
 def _joint_table(urdf_text: str) -> dict[str, dict]:
     """Per joint of the URDF (the robot's own ``<joint>`` elements, not the ones a ROS
     ``<transmission>`` names): type, lower, upper, velocity (None when absent).
 
-    Raises ``KinematicsError`` for a repeated joint name, a limit that is not a number, or NaN;
-    ``ET.ParseError`` for text that is not XML."""
+    Raises ``KinematicsError`` for a repeated joint name, a limit that is not a number, or NaN,
+    an origin or axis that is not three finite numbers, a zero axis; ``ET.ParseError`` for text
+    that is not XML."""
     root = ET.fromstring(urdf_text)
     table: dict[str, dict] = {}
     for j in root.findall("joint"):  # direct children: <transmission><joint name=...> is not a joint
@@ -67,15 +79,16 @@ def _joint_table(urdf_text: str) -> dict[str, dict]:
                 raise KinematicsError(f"joint {name!r}: limit {k} is NaN")
         if row["lower"] is not None and row["upper"] is not None and row["lower"] > row["upper"]:
             raise KinematicsError(f"joint {name!r}: lower limit {row['lower']} is above upper {row['upper']}")
+        origin = j.find("origin")
+        for key in ("xyz", "rpy"):  # (a NaN here made every pose NaN: the fit failed, IK raised)
+            text = origin.get(key) if origin is not None else None
+            if text is not None:
+                _three_finite(text, f"joint {name!r}: origin {key}={text!r}")
         axis = j.find("axis")
         xyz = axis.get("xyz") if axis is not None else None
-        if xyz is not None and row["type"] in ("revolute", "continuous", "prismatic"):
-            try:
-                zero = all(float(v) == 0.0 for v in xyz.split())
-            except ValueError:
-                raise KinematicsError(f"joint {name!r}: axis {xyz!r} is not three numbers") from None
-            if zero:
-                raise KinematicsError(f"joint {name!r}: its axis is zero")
+        if xyz is not None and row["type"] in ("revolute", "continuous", "prismatic") \
+                and not any(_three_finite(xyz, f"joint {name!r}: axis {xyz!r}")):
+            raise KinematicsError(f"joint {name!r}: its axis is zero")
         table[name] = row
     return table
 
