@@ -129,6 +129,25 @@ def test_resume_refuses_other_options_or_demos(demos, reference, tmp_path):
         train.main(_args(other, out, "--resume"))
 
 
+def test_a_checkpoint_with_more_restarts_than_asked_for_is_refused_in_one_line(demos, reference, tmp_path):
+    """A hand-edited checkpoint holding 16 restarts for a run of 8: the fit's refusal was a plain
+    ValueError (a traceback from train.py) with a garbled sentence; now a user error that names
+    both counts."""
+    import train
+    from lfd.cli import USER_ERRORS
+    from lfd.learning.checkpoint import CheckpointError
+    out = tmp_path / "run"
+    shutil.copytree(reference, out)
+    rec = checkpoint_path(out)
+    data = json.loads(rec.read_text())
+    for key in ("restart_losses", "loss_history", "em_iterations"):
+        data[key] = data[key] * 2
+    rec.write_text(json.dumps(data))
+    with pytest.raises(CheckpointError, match=r"has 16 restarts done, more than the 8 asked for") as info:
+        train.main(_args(demos, out, "--resume"))
+    assert isinstance(info.value, USER_ERRORS())
+
+
 # ----------------------------------------------------------------------------- the pieces
 def test_atomic_write_interrupted_keeps_the_old_file(tmp_path, monkeypatch):
     target = tmp_path / "summary.json"

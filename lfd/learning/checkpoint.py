@@ -36,6 +36,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from lfd.errors import UserInputError
+
 __all__ = [
     "STATE_TENSORS",
     "CheckpointError",
@@ -60,8 +62,9 @@ TMP_MARK = ".tmp-"
 STATE_TENSORS = ("tool", "env", "mu", "sigma_inv", "log_trans", "alignment")
 
 
-class CheckpointError(ValueError):
-    """A checkpoint that is missing, damaged, or made for other demonstrations or options."""
+class CheckpointError(UserInputError):
+    """A checkpoint that is missing, damaged, or made for other demonstrations or options (a
+    ``ValueError``; the commands report it as one line)."""
 
 
 class Interrupted(KeyboardInterrupt):

@@ -153,10 +153,11 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
     if resume is not None:
         why = resume.mismatch(config_record(cfg), demos_fingerprint(demoset))
         where = resume.source or "the checkpoint"
-        if why is None and resume.restarts_done > cfg.restarts:
-            why = f"has {resume.restarts_done} restarts, more than the {cfg.restarts} asked for"
         if why:
             raise CheckpointError(f"{where}: cannot resume, the checkpoint was {why}")
+        if resume.restarts_done > cfg.restarts:
+            raise CheckpointError(f"{where}: cannot resume, the checkpoint has {resume.restarts_done} restarts "
+                                  f"done, more than the {cfg.restarts} asked for")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer))
                                 or workers < 1):
         raise ValueError(f"workers must be a whole number >= 1 or None, got {workers!r}")
