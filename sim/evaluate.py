@@ -255,14 +255,20 @@ def _read_log(log: Path, latency: str, run_settings: dict) -> tuple[dict, dict, 
     done: dict = {}
     crashed: dict = {}
     lines = other = 0
-    text = log.read_text() if log.is_file() else ""
+    try:
+        text = log.read_text() if log.is_file() else ""
+    except UnicodeDecodeError as e:
+        raise UsageError(f"{log}: not a log of runs (not UTF-8 text: {e})") from e
     for n, line in enumerate(text.splitlines(), 1):
         try:
             r = json.loads(line)
-        except ValueError:
+        except (ValueError, RecursionError):
             continue  # a line cut by an interruption
         if not isinstance(r, dict):
             raise UsageError(f"{log}, line {n}: a logged run is a JSON object, got {type(r).__name__}")
+        if not isinstance(r.get("settings", {}), dict):
+            raise UsageError(f"{log}, line {n}: a logged run's settings are a JSON object, "
+                             f"got {type(r['settings']).__name__}")
         lines += 1
         # runs of another setting are redone: logged without a latency mode, a run was made in a
         # frozen world ("none"); with a dwell other than the paper's interval (an option since

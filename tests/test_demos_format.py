@@ -111,6 +111,7 @@ BROKEN = [
     ("landmark-dup", {"landmark_names": np.array(["bowl", "bowl", "vase"])}, r"repeats a name"),
     ("joint-order", {"joint_names": np.array(list(reversed(BAXTER_LEFT.joint_names)))}, r"joint_names .* differ"),
     ("robot-json", {"robot": np.array("not json")}, r"'robot' must be the JSON of a RobotSpec"),
+    ("robot-deep", {"robot": np.array("[" * 100_000 + "]" * 100_000)}, r"'robot' must be the JSON of a RobotSpec"),
     ("robot-differs", {"robot": np.array(json.dumps({**BAXTER_LEFT.to_dict(), "end_link": "left_hand"}))},
      r"recorded on robot"),
     ("names-object", {"landmark_names": np.array(["bowl", 1, None], dtype=object)}, r"cannot read without pickle"),

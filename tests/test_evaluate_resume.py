@@ -376,6 +376,7 @@ def test_runs_of_another_roadmap_size_or_models_folder_are_run_again(tmp_path, m
     (lambda r: r.update(scenario=[r["scenario"]]), "whole-number scenario"),  # was: unhashable type
     (lambda r: r.pop("initial_ms"), "missing or malformed initial_ms"),  # was: KeyError in the table
     (lambda r: r.update(fraction_in_bowl=None), "missing or malformed fraction_in_bowl"),  # was: TypeError
+    (lambda r: r.update(settings=5), "settings are a JSON object, got int"),  # was: TypeError
 ])
 def test_hand_edited_log_row_is_named_not_crashed_on(tmp_path, models, monkeypatch, edit, fragment):
     out = tmp_path / "eval"
@@ -389,6 +390,24 @@ def test_hand_edited_log_row_is_named_not_crashed_on(tmp_path, models, monkeypat
     with pytest.raises(UsageError, match=r"runs.jsonl, line 2: ") as info:
         ev.evaluate(_settings(), out, models, resume=True)
     assert fragment in str(info.value) and fake.calls == []
+
+
+def test_a_log_that_is_not_text_is_refused_and_a_line_nested_too_deep_is_skipped(tmp_path, models, monkeypatch):
+    """A non-UTF-8 byte in ``runs.jsonl`` was a UnicodeDecodeError traceback, a line of 100,000
+    nested brackets a RecursionError: the first is refused in one line, the second skipped like a
+    line cut by an interruption (its run is done again)."""
+    out = tmp_path / "eval"
+    out.mkdir()
+    pairs = _all_pairs()
+    (out / "runs.jsonl").write_bytes(json.dumps(_row(*pairs[0])).encode() + b"\n\xff\xfe\n")
+    monkeypatch.setattr(ev, "run_one", FakeRunOne())
+    with pytest.raises(UsageError, match=r"runs.jsonl: not a log of runs \(not UTF-8"):
+        ev.evaluate(_settings(), out, models, resume=True)
+    (out / "runs.jsonl").write_text(json.dumps(_row(*pairs[0])) + "\n" + "[" * 100_000 + "]" * 100_000 + "\n")
+    fake = FakeRunOne()
+    monkeypatch.setattr(ev, "run_one", fake)
+    ev.evaluate(_settings(), out, models, resume=True)
+    assert fake.calls == pairs[1:]
 
 
 def test_measured_runs_of_another_cpu_load_are_run_again(tmp_path, models, monkeypatch, capsys):

@@ -256,6 +256,10 @@ def test_command_line_refusals(tmp_path, capsys):
                             (("--trim-pauses", "100"), "no motion is left once the pauses are trimmed")):
         r = _import(capsys, DATA, tmp_path / "o5", *extra)
         assert r.returncode == 2 and fragment in r.stderr and r.stderr.count("\n") == 1, (extra, r.stderr)
+    (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)  # a RecursionError traceback
+    for option in ("--robot-json", "--columns"):
+        r = _import(capsys, DATA, tmp_path / "o9", option, str(tmp_path / "deep.json"))
+        assert r.returncode == 2 and (option in r.stderr or "deep.json" in r.stderr) and r.stderr.count("\n") == 1, r.stderr
     (tmp_path / "cols.json").write_text(json.dumps({"degrees": "false"}))  # was read as degrees=True
     r = _import(capsys, DATA, tmp_path / "o6", "--columns", str(tmp_path / "cols.json"))
     assert r.returncode == 2 and "'degrees' must be true or false, got 'false'" in r.stderr, r.stderr

@@ -71,7 +71,7 @@ def _robot(args):
                 spec = replace(spec, urdf=str(Path(spec.urdf).expanduser().resolve()))  # the cwd's
             return spec
         return robot_from_name(args.robot)
-    except (OSError, ValueError) as e:
+    except (OSError, ValueError, RecursionError) as e:  # (JSON nested too deep: RecursionError)
         raise UsageError(f"--robot{'-json' if args.robot_json else ''}: {e}") from e
 
 

@@ -86,7 +86,7 @@ class JointColumns:
                 raise ValueError(f"column names must be non-empty strings, got {names!r}")
             return cls(time=str(d.get("time", "time")), joints={str(k): str(v) for k, v in d.get("joints", {}).items()},
                        degrees=d.get("degrees", False))
-        except (OSError, ValueError, TypeError, AttributeError) as e:
+        except (OSError, ValueError, TypeError, AttributeError, RecursionError) as e:
             raise RecordingError(f"{path}: not a joint-column mapping ({e})") from e
 
     def column(self, joint: str) -> str:

@@ -124,7 +124,7 @@ def _check_one(path: Path, raw: dict) -> tuple[Demonstration, tuple, tuple, Robo
     where = str(path)
     try:
         robot = RobotSpec.from_dict(json.loads(str(raw["robot"])))
-    except (ValueError, TypeError) as e:
+    except (ValueError, TypeError, RecursionError) as e:
         raise DemoFormatError.at(where, f"key 'robot' must be the JSON of a RobotSpec (name, urdf, end_link, "
                                         f"joint_names): {e}") from e
     joint_names = names_from_array(where, "joint_names", raw["joint_names"])
