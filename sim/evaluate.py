@@ -403,6 +403,9 @@ def _read_summary(path: Path) -> dict:
     rec = read_json(path, UsageError)
     if not isinstance(rec, dict):
         raise UsageError(f"{path}: a training summary is a JSON object, got {type(rec).__name__}")
+    t = rec.get("learning_time_s", math.nan)  # (a string was found only when the table was printed)
+    if isinstance(t, bool) or not isinstance(t, (int, float)):
+        raise UsageError(f"{path}: learning_time_s must be a number of seconds, got {t!r}")
     return rec
 
 

@@ -410,6 +410,18 @@ def test_a_log_that_is_not_text_is_refused_and_a_line_nested_too_deep_is_skipped
     assert fake.calls == pairs[1:]
 
 
+def test_a_summary_whose_learning_time_is_not_a_number_is_refused_before_any_run(tmp_path, models, monkeypatch):
+    """``"learning_time_s": "abc"`` in a model's summary.json: every scene ran, results.json was
+    written, and printing the table raised. Now the summary is refused before the first run."""
+    v = next(v for v in ev.VARIANTS if v.name == VARIANTS[0])
+    (ev.model_dir_for(models, v) / "summary.json").write_text('{"learning_time_s": "abc"}')
+    fake = FakeRunOne()
+    monkeypatch.setattr(ev, "run_one", fake)
+    with pytest.raises(UsageError, match=r"summary.json: learning_time_s must be a number of seconds, got 'abc'"):
+        ev.evaluate(_settings(), tmp_path / "eval", models)
+    assert fake.calls == []
+
+
 def test_measured_runs_of_another_cpu_load_are_run_again(tmp_path, models, monkeypatch, capsys):
     """With measured latency the executor and its workers set the CPU's load, which lengthens
     every plan's charged time: ``--resume`` with other workers runs everything again and says
