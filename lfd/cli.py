@@ -14,6 +14,7 @@ with any other tool, and the status is not 0 (the output was cut) nor 2 (the inp
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import sys
 from pathlib import Path
@@ -22,6 +23,7 @@ from lfd.errors import UserInputError
 
 __all__ = [
     "EXIT_BROKEN_PIPE",
+    "STORAGE_ERRNOS",
     "USER_ERRORS",
     "ArgumentParser",
     "DefaultsHelpFormatter",
@@ -35,6 +37,9 @@ __all__ = [
 ]
 
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE: what a shell reports for a tool killed by a closed pipe
+# writes the storage refused (disk full, quota, read-only file system, file too large): one line and
+# status 1 (they were tracebacks); the writers leave no half-written file behind (atomic writes)
+STORAGE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG})
 
 
 class UsageError(UserInputError):
@@ -126,7 +131,8 @@ def error_line(e: BaseException) -> str:
 
 
 def run_main(main, argv=None, prog: str | None = None) -> None:
-    """Run ``main(argv) -> int | None`` and exit; user errors become one line and status 2.
+    """Run ``main(argv) -> int | None`` and exit; user errors become one line and status 2, a
+    write the storage refused (``STORAGE_ERRNOS``) one line and status 1.
 
     A closed stdout (the reader of a pipe stopped) exits quietly with ``EXIT_BROKEN_PIPE``.
     """
@@ -142,6 +148,11 @@ def run_main(main, argv=None, prog: str | None = None) -> None:
         except USER_ERRORS() as e:
             print(f"{prog}: error: {error_line(e)}", file=sys.stderr)
             code = 2
+        except OSError as e:  # the machine's fault, not the input's: one line too, status 1
+            if e.errno not in STORAGE_ERRNOS:
+                raise
+            print(f"{prog}: error: {error_line(e)}", file=sys.stderr)
+            code = 1
         sys.stdout.flush()  # a closed pipe shows here, not as "Exception ignored" at shutdown
     except BrokenPipeError:
         _stdout_to_devnull()

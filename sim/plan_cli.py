@@ -210,11 +210,16 @@ def main(argv=None, prog: str = PROG) -> int:
         print(f"execution: {'success' if ex['success'] else 'failure'} ({ex['reason']}); "
               f"{ex['fraction_in_bowl']:.0%} in the bowl, {ex['n_replans']} replans; the tool tilted "
               f"{ex['executed_tilt_deg']:.0f} deg at most (commanded {ex['planned_tilt_deg']:.0f})")
+    import io
+
     import numpy as np
+
+    from lfd.learning.checkpoint import atomic_write_bytes, atomic_write_text
     stem = out / f"plan_scenario{args.scenario_seed}"
-    np.savez(stem.with_suffix(".npz"), configurations=res.configurations, time_steps=res.time_steps,
-             dt=model.task.dt, cost=res.cost)
-    stem.with_suffix(".json").write_text(json.dumps(report, indent=2, default=float) + "\n")
+    buf = io.BytesIO()  # (written whole or not at all: a full disk left a truncated .npz)
+    np.savez(buf, configurations=res.configurations, time_steps=res.time_steps, dt=model.task.dt, cost=res.cost)
+    atomic_write_bytes(stem.with_suffix(".npz"), buf.getvalue())
+    atomic_write_text(stem.with_suffix(".json"), json.dumps(report, indent=2, default=float) + "\n")
     print(f"saved {stem.with_suffix('.npz')} and {stem.with_suffix('.json')}")
     if args.plot and res.ok:
         from lfd.plots import plot_plan_features

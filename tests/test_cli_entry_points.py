@@ -156,3 +156,29 @@ def test_one_plan_executed_exits_1_when_the_execution_fails(tmp_path, monkeypatc
     assert plan_cli.main(["--model", str(d), "--execute", "--out", str(tmp_path / "o")]) == code
     assert ("execution: success" if executed else "execution: failure (spilled)") in capsys.readouterr().out
 
+
+
+def test_a_write_the_storage_refuses_is_one_line_with_status_1(capsys):
+    """A full disk (ENOSPC) was a traceback from train.py, lfd-import and plan.py; now one line
+    naming the file, status 1 (the machine's fault, not the input's). Other OS errors still raise."""
+    import errno
+
+    import pytest
+
+    from lfd.cli import run_main
+
+    def full(argv):
+        raise OSError(errno.ENOSPC, "No space left on device", "/out/model.pt")
+
+    with pytest.raises(SystemExit) as info:
+        run_main(full, [], prog="lfd-train")
+    assert info.value.code == 1
+    err = capsys.readouterr().err
+    assert err.startswith("lfd-train: error: ") and err.count("\n") == 1, err
+    assert "No space left on device" in err and "/out/model.pt" in err, err
+
+    def broken(argv):
+        raise OSError(errno.EIO, "Input/output error")
+
+    with pytest.raises(OSError, match="Input/output"):
+        run_main(broken, [], prog="lfd-train")
