@@ -197,6 +197,9 @@ def main(argv=None, prog: str = PROG) -> int:
     from sim.model_check import load_checked_model
     from sim.runner import plan_scenario
     from sim.scenarios import draw_scenario
+    from sim.world import no_display
+    if args.gui and no_display():  # (a RuntimeError traceback after the model was loaded)
+        raise UsageError(f"--gui: {no_display()}; plan without it (--plot draws the plan)")
     _, task_name = load_checked_model(args.model, args.task)  # landmarks, robot, task: before any simulation
     out = writable_dir(args.out or args.model / "plans")
     scenario = draw_scenario(task_name, args.scenario_seed)

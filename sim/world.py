@@ -28,7 +28,7 @@ from sim import layout as L
 from sim.bullet import p
 from sim.particles import ParticleSet, in_bowl_mask, in_tool_mask, particle_positions, remove_particles, spawn_particles
 
-__all__ = ["World", "main", "patched_urdf", "pose_to_matrix"]
+__all__ = ["World", "main", "no_display", "patched_urdf", "pose_to_matrix"]
 
 TASKS = ("powder", "pour")
 LANDMARKS = {"powder": ("bowl", "marker_1", "marker_2", "marker_3", "marker_4"),
@@ -60,6 +60,13 @@ def patched_urdf(spec: RobotSpec, task: str, folder: Path) -> Path:
     return out
 
 
+def no_display() -> str:
+    """Why the PyBullet GUI cannot open here (Linux without ``DISPLAY``), or ``""``."""
+    if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+        return "the PyBullet GUI needs a display (DISPLAY is not set)"
+    return ""
+
+
 class World:
     """The PyBullet scene of one task.
 
@@ -85,8 +92,8 @@ class World:
         particle_radius = r_def if particle_radius is None else float(particle_radius)
         self._close_callbacks = []
         self.client = None
-        if gui and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
-            raise RuntimeError("the PyBullet GUI needs a display (DISPLAY is not set); use --snapshot")
+        if gui and no_display():
+            raise RuntimeError(no_display())
         self.client = p.connect(p.GUI if gui else p.DIRECT)
         if self.client < 0:
             self.client = None
@@ -350,7 +357,7 @@ def main(argv=None) -> int:
         scenario = {n: L.DEFAULT_XY[n] for n in ("paper_towels", "lamp_shade", "vase", "books")} if args.obstacles else None
         world = World(args.task, gui=args.gui, scenario=scenario)
     except (ValueError, FileNotFoundError, RuntimeError) as e:
-        raise UsageError(str(e)) from e
+        raise UsageError(str(e) + ("; use --snapshot" if args.gui and no_display() else "")) from e
     with world:
         world.step(args.steps)
         if args.snapshot:

@@ -338,6 +338,14 @@ def test_plan_cli_checks_seeds_and_folders_first(args, fragment, capsys):
     _one_line_exit_2(_plan(capsys, *args), fragment)
 
 
+def test_plan_cli_gui_without_a_display_is_one_line(capsys, monkeypatch):
+    """``plan.py --gui`` on Linux without DISPLAY was a RuntimeError traceback (after the model
+    loaded) that pointed to a --snapshot option plan.py does not have."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    _one_line_exit_2(_plan(capsys, "--model", "m", "--gui"), "--gui: the PyBullet GUI needs a display (DISPLAY is not set)")
+
+
 def test_evaluation_whose_training_fails_exits_2_without_a_traceback(tmp_path, capsys):
     """A variant trained on demand from broken demonstrations: one line says which variant failed
     and the training's reason; nothing is simulated and no model folder is left."""
