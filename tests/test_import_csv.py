@@ -336,3 +336,19 @@ def test_arguments_of_the_wrong_kind_are_named():
             import_recordings(DATA, BAXTER_LEFT, **kw)
     ds, _ = import_recordings(DATA, BAXTER_LEFT, 10, trim=0)  # whole numbers are numbers
     assert abs(ds.dt - 0.1) < 1e-6
+
+
+def test_a_stray_time_stamp_within_a_huge_max_gap_is_refused_not_allocated(tmp_path, capsys):
+    """The last joint reading stamped 1e11 s (another unit), accepted by ``--max-gap 1e12``: the
+    resampling asked for 7 TiB. A demonstration longer than ``MAX_DEMO_S`` is refused in one line."""
+    import shutil
+    src = tmp_path / "rec"
+    shutil.copytree(DATA, src)
+    path = src / "demo_01" / "joints.csv"
+    lines = path.read_text().splitlines()
+    head, last = lines[-1].split(",", 1)
+    lines[-1] = "1e11," + last
+    path.write_text("\n".join(lines) + "\n")
+    r = _import(capsys, src, tmp_path / "out", "--max-gap", "1e12")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "demo_01/joints.csv: the joints' readings span 1e+11 s, more than a demonstration of 3600 s" in r.stderr

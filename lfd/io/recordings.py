@@ -48,11 +48,12 @@ from lfd.learning.tasks import TaskSpec, is_real
 from lfd.robot.robots import RobotSpec
 from lfd.robot.se3 import not_rigid
 
-__all__ = ["LANDMARK_COLUMNS", "QUAT_TOLERANCE", "JointColumns", "RecordingError", "find_recordings",
+__all__ = ["LANDMARK_COLUMNS", "MAX_DEMO_S", "QUAT_TOLERANCE", "JointColumns", "RecordingError", "find_recordings",
            "import_recordings"]
 
 LANDMARK_COLUMNS = ("time", "name", "x", "y", "z", "qx", "qy", "qz", "qw")
 QUAT_TOLERANCE = 1e-3  # |norm - 1| allowed in a recorded quaternion
+MAX_DEMO_S = 3600.0  # s: a demonstration longer than an hour is a time stamp in error (a task takes seconds)
 
 
 class RecordingError(UserInputError):
@@ -373,6 +374,9 @@ def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: Tas
                                  f"{trim:g} rad (no joint moves more than {span:.3g} rad from where it "
                                  "starts): lower --trim-pauses")
         t0, t1 = t_raw[keep][0], t_raw[keep][-1]
+        if t1 - t0 > MAX_DEMO_S:  # (a stray time stamp within a huge --max-gap asked for terabytes)
+            raise RecordingError(f"{jpath}: the joints' readings span {t1 - t0:.4g} s, more than a demonstration "
+                                 f"of {MAX_DEMO_S:g} s: a time stamp is off (in another unit?)")
         t = t0 + np.arange(int(math.floor((t1 - t0) * rate + 1e-9)) + 1) / rate  # (S,)
         if len(t) < 2:  # was reported as an arm that never moved
             raise RecordingError(f"{jpath}: {len(t_raw)} reading(s) over {t1 - t0:.3g} s, shorter than one "
