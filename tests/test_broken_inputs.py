@@ -265,6 +265,11 @@ BROKEN_MODELS = [
                                             + torch.triu(torch.full((10, 10), 0.3, dtype=torch.float64), 1)),
      "sigma_inv must be lower triangular"),  # loaded; its log det, read off the diagonal, was wrong
     ("names-repeated", lambda d: _break_config(d, all_landmark_names=["bowl", "bowl"]), "distinct non-empty strings"),
+    # finite but extreme: loaded, then plan.py raised in the IK's SVD / the planner's Cholesky
+    ("mu-huge", lambda d: _break_tensor(d, "mu", torch.full((4, 10), 1e200, dtype=torch.float64)),
+     "mu holds values up to 1e+200"),
+    ("sigma-tiny", lambda d: _break_tensor(d, "sigma_inv", 1e-200 * torch.eye(10, dtype=torch.float64).repeat(4, 1, 1)),
+     "sigma_inv is too close to singular"),
     ("not-tensors", lambda d: _break_tensor(d, "tool", [0.0, 0.0, 0.0]), "must be real floating-point (dense) tensors"),
     ("complex", lambda d: _break_tensor(d, "tool", torch.zeros(3, dtype=torch.complex128)),
      "must be real floating-point (dense) tensors"),

@@ -44,6 +44,7 @@ __all__ = [
     "COVARIANCES",
     "FEATURE_SETS",
     "FORMAT",
+    "MAX_FEATURE",
     "OFFSETS",
     "ModelFormatError",
     "TaskModel",
@@ -60,6 +61,7 @@ __all__ = [
 
 COVARIANCES = ("full", "block")
 FORMAT = "lfd-task-model/1"
+MAX_FEATURE = 1e3  # no feature's mean (rad, m) is larger in a model that was learned
 
 
 class ModelFormatError(UserInputError):
@@ -264,6 +266,13 @@ class TaskModel:
                              f"above the diagonal up to {float(upper):.3g}")
         if not (math.isfinite(self.logdet_scale) and self.logdet_scale > 0):
             raise ValueError(f"TaskModel.logdet_scale must be finite and positive, got {self.logdet_scale}")
+        big = float(self.mu.detach().abs().amax())  # (1e200 passed, and the IK's SVD raised in a plan)
+        if big > MAX_FEATURE:
+            raise ValueError(f"TaskModel.mu holds values up to {big:.3g}: its features are joint values and "
+                             f"tool positions and attitudes (rad, m), none beyond {MAX_FEATURE:g}")
+        L = torch.linalg.inv(self.sigma_inv.detach())  # (T, F, F) Cholesky factors of the covariances
+        if not torch.isfinite(L @ L.transpose(-1, -2)).all():  # (a planner's Cholesky raised on them)
+            raise ValueError("TaskModel.sigma_inv is too close to singular: its covariances are not finite")
 
     # -- basic properties
     @property
