@@ -191,20 +191,27 @@ class _Commands:
         return getattr(self._world, name)
 
 
-@pytest.fixture(scope="module")
-def blocked_scene(make_world):
-    """A powder world, its collision callables, and waypoints A and B (the gripper 30 cm below A)
-    with B where a moved bowl's floor makes it collide: ``(world, fns, A, B, bowl_at_B, bowl)``."""
-    from sim.collision import make_collision_fns
-
-    world = make_world("powder", n_particles=0)
+def _a_and_b(world) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Waypoints A and B, the gripper 30 cm below A at B, and the gripper's place at B ``(3,)``
+    (the arm is left at home)."""
     home = np.asarray(L.HOME_Q, dtype=float)
     A, B = home + [0.4, -0.3, 0, 0, 0, 0, 0], home + [0.4, 0, 0.4, 0, 0, 0, 0]
     world.set_q(B)
-    gripper_at_B = tuple(world.T_world_gripper()[:3, 3])
+    gripper_at_B = world.T_world_gripper()[:3, 3]
     world.set_q(home)
+    return A, B, gripper_at_B
+
+
+@pytest.fixture(scope="module")
+def blocked_scene(make_world):
+    """A powder world, its collision callables, and waypoints A and B (``_a_and_b``) with B where
+    a moved bowl's floor makes it collide: ``(world, fns, A, B, bowl_at_B, bowl)``."""
+    from sim.collision import make_collision_fns
+
+    world = make_world("powder", n_particles=0)
+    A, B, gripper_at_B = _a_and_b(world)
     bowl = tuple(world.sensed_landmarks()[1][0][:2, 3])
-    return world, make_collision_fns(world), A, B, gripper_at_B, bowl
+    return world, make_collision_fns(world), A, B, tuple(gripper_at_B), bowl
 
 
 def test_a_bowl_moved_onto_the_segment_being_driven_stops_the_arm_on_it(blocked_scene):
@@ -319,20 +326,18 @@ def test_a_distractor_moved_onto_the_path_asks_for_a_plan_and_is_not_hit(make_wo
     from sim.collision import make_collision_fns
 
     base = make_world("pour", n_particles=0)
-    home = np.asarray(L.HOME_Q, dtype=float)
-    A, B = home + [0.4, -0.3, 0, 0, 0, 0, 0], home + [0.4, 0, 0.4, 0, 0, 0, 0]
-    base.set_q(B)
-    vase_at_B = tuple(base.T_world_gripper()[:2, 3])
-    base.set_q(home)
+    A, B, gripper_at_B = _a_and_b(base)
     vase = tuple(base.object_pose("vase")[:2, 3])
     fns = make_collision_fns(base)
-    planner = _BlockedAheadPlanner(base, KinematicModel.from_spec(), [L.HOME_Q, A, B, L.HOME_Q], fns)
-    assert planner.model.landmark_names == ("bowl",)
+
+    def planner():
+        return _BlockedAheadPlanner(base, KinematicModel.from_spec(), [L.HOME_Q, A, B, L.HOME_Q], fns)
+
     s = ExecSettings(latency="none", pace="fastest", settle_s=0.0)
-    first = execute_plan(_CountingWorld(base), _BlockedAheadPlanner(base, KinematicModel.from_spec(),
-                                                                   [L.HOME_Q, A, B, L.HOME_Q], fns), settings=s)
-    world = _MovesAt(base, "vase", vase_at_B, at=int(0.5 * first.duration_s / L.SIM_DT))  # on A -> B
-    result = execute_plan(world, planner, settings=s)
+    first = execute_plan(_CountingWorld(base), planner(), settings=s)  # undisturbed: how long the plan takes
+    world = _MovesAt(base, "vase", tuple(gripper_at_B[:2]), at=int(0.5 * first.duration_s / L.SIM_DT))  # on A -> B
+    result = execute_plan(world, planner(), settings=s)
+    assert planner().model.landmark_names == ("bowl",)
     assert fns.segment_fn(A, B) and not fns.collision_fn(A)  # the vase is where the test says
     base.move_object("vase", vase)
     assert result.n_replans >= 1 and result.plan_statuses[1] == "ok", result.plan_statuses
