@@ -1,5 +1,7 @@
-"""The closed loop's clock (``sim.execute``): planner work is charged in simulated time even
-when it gives no plan. A scripted planner in a real PyBullet world, so the timing is exact."""
+"""The closed loop (``sim.execute``): its clock (planner work is charged in simulated time even
+when it gives no plan), and the plan being followed checked when the world changes (the arm stops
+before what moved onto its path, holds where a late plan starts). Scripted planners in a real
+PyBullet world, so the timing is exact and the contacts are the physics'."""
 
 from __future__ import annotations
 
