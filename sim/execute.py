@@ -47,7 +47,7 @@ arm frame or the tool point from where it was commanded; ``planned_tilt_deg`` an
 ``executed_tilt_deg``: the largest tilt of the tool (``sim.attitude``) commanded and reached.
 
 Success is the paper's: nothing the arm or tool touches (table, containers, obstacles) and at least
-``success_fraction`` of the particles inside the bowl once they have settled.
+``success_fraction`` of the particles inside the bowl once they have settled (``sim.judge``).
 """
 
 from __future__ import annotations
@@ -61,8 +61,8 @@ import numpy as np
 from lfd.timing import PROFILES, plan_segments, step_clock
 from sim import layout as L
 from sim.attitude import tilts_of
-from sim.bullet import p
 from sim.follow import PlanFollower
+from sim.judge import ContactLog, settle_and_judge
 from sim.latency import charged_s, parse_latency
 
 __all__ = ["PACES", "ExecSettings", "RunResult", "execute_plan"]
@@ -159,45 +159,6 @@ class RunResult:
         return d
 
 
-TOUCH_DISTANCE = 0.001  # m: a contact point at most this far apart is a touch
-
-
-class _ContactLog:
-    """Contacts of the left arm and the tool with anything but particles.
-
-    PyBullet reports contact points up to its contact-breaking threshold (2 cm) *before* the
-    bodies meet, with a positive distance, for some shape pairs (for others only once they
-    touch); only points at most ``TOUCH_DISTANCE`` apart (touching or penetrating) are logged,
-    so a close pass is not a collision.
-    """
-
-    def __init__(self, world):
-        self.world, c = world, world.client
-        self.arm_links = {idx for name, idx in world.link_index.items()
-                          if name.startswith(("left_", "l_gripper")) or name == "tool"} - {-1}
-        self.names = {world.table: "table", **{b: n for n, b in world.objects.items()}}
-        self.skip = set(world.particles.ids) | {b for n, b in world.objects.items()
-                                                if world.object_kind(n) == "marker"}
-        self.link_names = {idx: name for name, idx in world.link_index.items()}
-        self.c = c
-        self.events: list[dict] = []
-        self._seen: set = set()
-
-    def poll(self, t_s: float) -> None:
-        for cp in p.getContactPoints(bodyA=self.world.robot, physicsClientId=self.c):
-            body, link, distance = cp[2], cp[3], cp[8]
-            if (body == self.world.robot or body in self.skip or link not in self.arm_links
-                    or distance > TOUCH_DISTANCE):
-                continue
-            key = (body, link)
-            if key in self._seen:
-                continue
-            self._seen.add(key)
-            self.events.append({"body": self.names.get(body, str(body)),
-                                "link": self.link_names.get(link, str(link)), "t_s": round(t_s, 3),
-                                "distance_m": round(float(distance), 4)})
-
-
 def _moved(now: np.ndarray, before: np.ndarray, threshold: float) -> bool:
     """Whether landmark positions ``now (Z, 3)`` differ from ``before`` by more than ``threshold``
     (m) for any landmark, or one was sensed and is not now or the other way round (NaN)."""
@@ -252,14 +213,14 @@ class _ClosedLoop:
         self.busy_until = 0  # sim step until which the planner works on something that gave no plan
         self.search_s: dict = {}  # the last search's time of each kind of re-plan
         self.planned_at: np.ndarray | None = None  # (Z, 3) landmark positions the current plan is for
-        self.contacts: _ContactLog | None = None
+        self.contacts: ContactLog | None = None
 
     def run(self) -> RunResult:
         world, s, result = self.world, self.s, self.result
         world.set_q(self.q_cmd)
         world.respawn_particles()
         world.step(int(0.3 / L.SIM_DT))  # let the particles settle in the tool
-        self.contacts = _ContactLog(world)
+        self.contacts = ContactLog(world)
         if not self._first_plan():
             return result
         sense_every = max(1, int(round(s.sense_period / L.SIM_DT)))
@@ -281,7 +242,7 @@ class _ClosedLoop:
                 move_step = None
             if self.pending is None and self.step >= self.busy_until:  # the planner is free to sense
                 self._sense()
-        _settle_and_judge(world, self.contacts, result, s, self.step, self.frames)
+        settle_and_judge(world, self.contacts, result, s, self.step, self.frames)
         return result
 
     def _sim_step(self) -> None:
@@ -475,29 +436,3 @@ class _ClosedLoop:
             if np.any(q0 != q1) and self.planner.segment_fn(q0, q1):
                 return start if i == start[0] else (i, 0.0)
         return None
-
-
-def _settle_and_judge(world, contacts: _ContactLog, result: RunResult, s: ExecSettings, step: int,
-                      frames: list | None) -> None:
-    """After the last command (sim step ``step``): let the particles settle for ``settle_s``, then
-    judge the run as the paper does, into ``result``: a contact fails it, else the share of the
-    particles in the bowl must reach ``success_fraction``."""
-    settle = int(s.settle_s / L.SIM_DT)
-    for k in range(settle):
-        world.step(1)
-        if k % 8 == 0:
-            contacts.poll((step + k) * L.SIM_DT)
-        if frames is not None and s.frame_every and (step + k) % s.frame_every == 0:
-            frames.append(world.render(480, 360))
-    result.duration_s = (step + settle) * L.SIM_DT
-    result.contacts = contacts.events
-    result.fraction_in_bowl = world.fraction_in_bowl()
-    result.fraction_spilled = world.fraction_spilled()
-    hits = sorted({c["body"] for c in result.contacts})
-    if hits:
-        result.reason = f"collision with {', '.join(hits)}"
-    elif result.fraction_in_bowl < s.success_fraction:
-        result.reason = (f"only {result.fraction_in_bowl:.0%} of the particles in the bowl "
-                         f"(needs {s.success_fraction:.0%})" + (f"; {result.stopped}" if result.stopped else ""))
-    else:
-        result.success, result.reason = True, "ok"

@@ -339,7 +339,7 @@ def test_a_model_sampled_fast_gets_nodes_as_fine_as_the_motion_not_the_rate():
     integral in the model's time base, stays within 0.2% of what the fine nodes give (the quadratic cost of
     ``test_edge_integral_converges_with_resolution``: second-order error), and an explicit
     ``quad_dt`` is still honoured."""
-    from lfd.planning.edgestore import MIN_QUAD_DT
+    from lfd.planning.quadrature import MIN_QUAD_DT
 
     rm = Roadmap(2, lambda q: False, lambda a, b: False)
     rm.add_vertices(np.array([[0.0, 0.0], [1.0, 0.5]]), check=False)

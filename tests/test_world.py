@@ -147,7 +147,7 @@ def test_cli_bad_input_exits_2_with_one_line(args, message, capsys, tmp_path, mo
 def test_contact_log_counts_touches_not_close_passes(world):
     """PyBullet reports contact points up to 2 cm before bodies meet; the executor's log counts
     only points at most 1 mm apart."""
-    from sim.execute import TOUCH_DISTANCE, _ContactLog
+    from sim.judge import TOUCH_DISTANCE, ContactLog
     world.set_q(L.HOME_Q)
     xy = world.T_world_gripper()[:2, 3]
     c = world.client
@@ -163,7 +163,7 @@ def test_contact_log_counts_touches_not_close_passes(world):
         near = dxs[np.flatnonzero((gaps > 0.004) & (gaps < 0.015))[0]]
         for dx, touching in ((near, False), (0.0, True)):
             g = gap(dx)
-            log = _ContactLog(world)
+            log = ContactLog(world)
             world.command_q(L.HOME_Q)
             world.step(1)
             log.poll(0.0)

@@ -59,7 +59,7 @@ def time_step(t, T: int) -> int:
 @dataclass(frozen=True)
 class PlannerSettings:
     """quad_dt: max time (s) between quadrature nodes along an edge (None: the model's dt, or
-    ``lfd.planning.edgestore.MIN_QUAD_DT`` when the model's is shorter);
+    ``lfd.planning.quadrature.MIN_QUAD_DT`` when the model's is shorter);
     max_expansions: A* budget (product nodes) past which ``plan`` returns 'budget_exceeded';
     connect_k: neighbours tried for the robot's (and a goal) configuration (None:
     k_PRM*(n + 1)); max_path_checks: searches per plan at most (each after dropping colliding
