@@ -235,6 +235,7 @@ class _ClosedLoop:
             else:
                 self.q_cmd, self.qdot = self.follow.advance()
             self._sim_step()
+            self._release_ended_hold()
             if self.step % sense_every:
                 continue
             if move_step is not None and self.follow.step_at(self.follow.position) >= move_step:
@@ -291,13 +292,16 @@ class _ClosedLoop:
         return PlanFollower(plan_segments(configurations, time_steps, self.vmax, self.dt, self.s.speed, self.clock,
                                           self.accel, elapsed=elapsed), self.s.profile, int(time_steps[-1]), elapsed)
 
-    def _holding(self) -> bool:
-        """Whether the robot holds still: its plan ended before the new one arrived, or it is
-        where it must not go past (``stop_at``, unless released: a re-plan found no path and the
-        old plan is free ahead)."""
-        assert self.follow is not None
+    def _release_ended_hold(self) -> None:
+        """Lift ``stop_at`` once ``release_at`` has come (a re-plan found no path and the old
+        plan is free ahead: the robot goes on along it once the planner's time has passed)."""
         if self.release_at is not None and self.step >= self.release_at:
             self.stop_at = self.release_at = None
+
+    def _holding(self) -> bool:
+        """Whether the robot holds still: its plan ended before the new one arrived, or it is
+        where it must not go past (``stop_at``)."""
+        assert self.follow is not None
         return self.follow.done or (self.stop_at is not None and self.follow.position >= self.stop_at)
 
     def _take_over_arrived_plan(self) -> bool:
@@ -321,7 +325,7 @@ class _ClosedLoop:
         vertex count against ``max_replans`` too, so that a growth that never ends cannot hold
         it forever."""
         s, result = self.s, self.result
-        held = self._holding()  # (first: a hold that has ended is released before any re-plan)
+        held = self._holding()
         names, poses = self.world.sensed_landmarks()
         now = np.asarray(poses)[:, :3, 3]
         assert self.planned_at is not None
