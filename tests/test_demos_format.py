@@ -207,6 +207,17 @@ def test_cli_one_line_exit_2(good_dir, capsys):
     assert "must be positive" in r.stderr
 
 
+def test_cli_notes_a_reference_landmark_the_set_does_not_sense(good_dir, capsys):
+    """A task.json whose reference_landmark no file senses: the set is valid (exit 0), and the
+    summary says which baseline it cannot serve; with a sensed one, no note."""
+    r = run_cli(*entry_point("python -m lfd.learning.demos"), [good_dir], capsys)
+    assert r.returncode == 0 and "note:" not in r.stdout
+    (good_dir / "task.json").write_text(json.dumps({**POWDER.to_dict(), "reference_landmark": "kettle"}))
+    r = run_cli(*entry_point("python -m lfd.learning.demos"), [good_dir], capsys)
+    assert r.returncode == 0, r.stderr
+    assert "reference_landmark 'kettle' is not among the landmarks" in r.stdout
+
+
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_random_corruption_loaded_or_refused(tmp_path_factory, kin, data):

@@ -287,6 +287,10 @@ def _main(argv=None) -> int:
     print(f"{len(ds.demos)} demonstrations of {ds.task.name if ds.task else 'an unnamed task'} on "
           f"{ds.robot.name}: {ds.n_observations} observations (per demonstration {min(lengths)}-"
           f"{max(lengths)}), dt={ds.dt:g} s, landmarks {list(ds.landmark_names)}")
+    if ds.task is not None and ds.task.reference_landmark not in ds.landmark_names:
+        print(f"note: task.json's reference_landmark {ds.task.reference_landmark!r} is not among the landmarks: "
+              "the set can be learned, but not the baseline that fixes the environment landmark to it "
+              "(env='bowl', lfd-plan's manual variants)")
     return 0
 
 
