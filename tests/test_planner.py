@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from lfd.planning.edgestore import BLOCKED, FREE, UNKNOWN, EdgeStore
-from lfd.planning.planner import ClosedLoopPlanner, PlannerSettings
+from lfd.planning.planner import ClosedLoopPlanner, PlannerSettings, time_step
 from lfd.planning.roadmap import Roadmap, k_prm_star
 from lfd.planning.stepcost import CallableStepCost
 from lfd.planning.stsearch import SearchGraph, cost_to_go, transition_table
@@ -416,6 +416,16 @@ def test_statuses(toy):
         p.plan(q0, T2)
     with pytest.raises(ValueError, match="trans_cost"):
         ClosedLoopPlanner(toy, step_cost(T2), -trans_table(T2), DT, VMAX2)
+
+
+def test_time_step_reads_0d_arrays_and_tensors_and_refuses_bools_and_fractions():
+    """t_current from a torch or numpy computation (a 0-d value) is read like an int; a bool,
+    a fraction or a vector is refused as before."""
+    for t in (2, 2.0, np.int64(2), np.array(2), torch.tensor(2), torch.tensor(2.0)):
+        assert time_step(t, 5) == 2
+    for t in (True, torch.tensor(True), np.bool_(True), 1.5, torch.tensor(1.5), torch.tensor([2]), 5, -1, None, "2"):
+        with pytest.raises(ValueError, match="t_current"):
+            time_step(t, 5)
 
 
 def test_state_stays_bounded_over_many_replans(toy):

@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+import torch
 
 from lfd.planning.roadmap import Roadmap, RoadmapSettings, ik_biased_samples, k_prm_star, mixed_samples
 from helpers import box_world
@@ -152,11 +153,65 @@ def test_hits_pass_on_the_names_the_collision_callables_give(batched):
 
 
 def test_hits_reads_a_list_mixing_names_and_booleans():
-    """A plain list of names, False, None and numpy booleans: nothing free is named "False"."""
-    answers = ["box", False, None, np.bool_(True), np.bool_(False), "", np.str_("wall"), True]
+    """A plain list of names, False and numpy booleans: nothing free is named "False"."""
+    answers = ["box", False, 0, np.bool_(True), np.bool_(False), "", np.str_("wall"), True]
     rm = Roadmap(2, None, segment_hits_box, batch_collision_fn=lambda Q: list(answers[:len(Q)]))
     got = rm.hits(np.zeros((len(answers), 2)))
     assert got.tolist() == ["box", "", "", "?", "", "", "wall", "?"]
+
+
+def _forgot_return(*q):
+    hit = True  # noqa: F841 (the bug being tested: no return, so the answer is None)
+
+
+@pytest.mark.parametrize("answer", [None, 0.5, 2, "distance", np.array([True, False]), [None]])
+def test_an_answer_that_is_not_a_bool_or_a_name_is_refused_not_read_as_free(answer):
+    """``None`` (a check that forgot its ``return``), a distance, a count or several values for
+    one configuration: each a ValueError naming the callable; read as falsy, a forgotten return
+    planned through every obstacle. ("distance" is a name: it stays a hit.)"""
+    Q = np.zeros((1, 2))
+    if isinstance(answer, str):
+        assert Roadmap(2, lambda q: answer, segment_hits_box).hits(Q).tolist() == ["distance"]
+        return
+    single = Roadmap(2, lambda q: answer, lambda a, b: answer)
+    with pytest.raises(ValueError, match="collision_fn"):
+        single.hits(Q)
+    with pytest.raises(ValueError, match="segment_fn"):
+        single.segment_collides(Q[0], Q[0] + 1)
+    batch = Roadmap(2, None, segment_hits_box, batch_collision_fn=lambda Q: [answer] * len(Q))
+    with pytest.raises(ValueError, match="batch_collision_fn"):
+        batch.hits(np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="returned None"):
+        Roadmap(2, _forgot_return, segment_hits_box).hits(Q)
+    with pytest.raises(ValueError, match="returned None"):
+        Roadmap(2, None, segment_hits_box, batch_collision_fn=_forgot_return).hits(Q)
+
+
+def test_torch_answers_read_like_numpy_ones():
+    """A check written in torch: a 0-d bool tensor per configuration, or a (n,) tensor per batch."""
+    Q = np.array([[0.0, 0.0], [0.9, 0.9]])  # the first inside the box
+    want = in_box(Q[0]), in_box(Q[1])
+    single = Roadmap(2, lambda q: torch.as_tensor(bool(in_box(q))), segment_hits_box)
+    batch = Roadmap(2, None, segment_hits_box,
+                    batch_collision_fn=lambda Q: torch.as_tensor([bool(in_box(q)) for q in Q]))
+    assert single.in_collision(Q).tolist() == list(want) == batch.in_collision(Q).tolist() == [True, False]
+
+
+def test_callables_cannot_change_the_roadmaps_configurations():
+    """A check that writes into its argument (wrapping angles, say) fails loudly; before, it
+    moved the roadmap's vertices and the caller's array."""
+    def wraps(q):
+        q[0] = 0.123
+        return False
+
+    Q = np.array([[0.5, 0.5], [0.6, 0.6]])
+    with pytest.raises(ValueError, match="read-only"):
+        Roadmap(2, wraps, segment_hits_box).hits(Q)
+    with pytest.raises(ValueError, match="read-only"):
+        Roadmap(2, None, segment_hits_box, batch_collision_fn=lambda Q: wraps(Q) or [False] * len(Q)).hits(Q)
+    with pytest.raises(ValueError, match="read-only"):
+        Roadmap(2, in_box, lambda a, b: wraps(a)).segment_collides(Q[0], Q[1])
+    assert Q.tolist() == [[0.5, 0.5], [0.6, 0.6]]
 
 
 def test_biased_samples_are_used_first_and_filtered():

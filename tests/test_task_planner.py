@@ -626,7 +626,8 @@ def test_time_steps_settings_names_and_samples_are_checked(kin):
     """Each was accepted and failed later, or was silently wrong: a float count, a NumPy seed
     (torch's manual_seed refused it), a NaN inflation (a Cholesky error), a dict for the roadmap's
     settings; t_current None, NaN or True; a landmark named twice (the second pose ignored); a
-    sample_fn answering (d, n) (reshaped into scrambled configurations)."""
+    sample_fn answering (d, n) (reshaped into scrambled configurations) or in degrees (vertices
+    no plan should reach)."""
     for kw, fragment in [({"n_vertices": 500.0}, "TaskPlannerSettings.n_vertices must be a whole number >= 2"),
                          ({"extra_posture_rounds": 1.5}, "extra_posture_rounds must be a whole number >= 0"),
                          ({"region_inflation": float("nan")}, "region_inflation must be a finite number > 0"),
@@ -655,6 +656,11 @@ def test_time_steps_settings_names_and_samples_are_checked(kin):
                              settings=TaskPlannerSettings(n_vertices=40, seed=0, region_fraction=0.0))
     with pytest.raises(ValueError, match=r"sample_fn\(\d+\) must return \d+ finite configurations, shape \(\d+, 7\); got shape \(7, \d+\)"):
         transposed.update_landmarks(["bowl"], bowl[None])
+    degrees = TaskPlanner(_model(kin), lambda q: False, lambda a, b: False,
+                          sample_fn=lambda n: np.degrees(kin.sample_uniform(n).numpy()),
+                          settings=TaskPlannerSettings(n_vertices=40, seed=0, region_fraction=0.0))
+    with pytest.raises(ValueError, match=r"sample_fn\(\d+\) returned \d+ configurations outside the joint limits \(radians\), e\.g\. left_"):
+        degrees.update_landmarks(["bowl"], bowl[None])
 
 
 def test_a_continuous_joint_plans_and_a_joint_without_a_velocity_limit_is_refused(tmp_path):

@@ -50,6 +50,8 @@ STALE_EXPANSIONS = 300
 def time_step(t, T: int) -> int:
     """``t`` as an ``int`` if it is a time step of a ``T``-step task (a whole number in ``[0, T)``,
     a whole float too), else a ``ValueError`` (``None``, NaN and ``True`` were TypeErrors or taken)."""
+    if getattr(t, "ndim", None) == 0 and hasattr(t, "item"):
+        t = t.item()  # a 0-d numpy or torch value (a torch bool stays refused)
     value = float(t) if is_real(t) else math.nan
     if not (math.isfinite(value) and value == int(value) and 0 <= value < T):
         raise ValueError(f"Expected t_current an integer in [0, {T - 1}], got {t!r}")
@@ -209,7 +211,7 @@ class ClosedLoopPlanner:
                           latency_s=time.perf_counter() - tic, stats=dict(stats or {}), message=message)
 
     def _check_q(self, q, name):
-        q = np.asarray(q, dtype=float).reshape(-1)
+        q = np.array(q, dtype=float).reshape(-1)  # a copy: the caller's array is never written
         if q.shape != (self.roadmap.d,) or not np.all(np.isfinite(q)):
             raise ValueError(f"Expected {name} finite with shape ({self.roadmap.d},), got {q}")
         return q

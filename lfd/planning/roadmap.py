@@ -151,12 +151,15 @@ class Roadmap:
     def hits(self, Q: np.ndarray) -> np.ndarray:
         """Q: (n, d) -> (n,) str: what each configuration hits, ``""`` where it is free; the
         collision callables' names when they give them, else ``UNNAMED``."""
-        Q = self._check_Q(Q, "Q")
+        Q = _read_only(self._check_Q(Q, "Q"))  # (the callables get a copy they cannot write to)
         self.counters["vertex_checks"] += len(Q)
         if len(Q) == 0:
             return np.zeros(0, dtype=str)
         if self.batch_collision_fn is not None:
-            out = self.batch_collision_fn(Q)
+            out = _numpy(self.batch_collision_fn(Q))
+            if out is None:
+                raise ValueError("batch_collision_fn returned None: it must answer each configuration "
+                                 "with a bool or the name of what it hits (a missing return?)")
             # (a list mixing names and False must not become the string "False")
             out = out if isinstance(out, np.ndarray) else np.asarray(out, dtype=object)
             if out.size != len(Q):  # (a scalar was numpy's 'cannot reshape')
@@ -166,9 +169,12 @@ class Roadmap:
             if out.dtype.kind == "U":  # names already
                 return out
             if out.dtype.kind == "O":
-                return np.array([_name(x) for x in out.tolist()])
+                return np.array([_name(x, "batch_collision_fn") for x in out.tolist()])
+            if out.dtype.kind not in "biu":
+                raise ValueError(f"batch_collision_fn must answer with bools or names, got dtype {out.dtype} "
+                                 "(a distance? compare it with a margin first)")
             return np.where(out.astype(bool), UNNAMED, "")
-        return np.array([_name(self.collision_fn(q)) for q in Q])
+        return np.array([_name(self.collision_fn(q), "collision_fn") for q in Q])
 
     def add_vertices(self, Q: np.ndarray, check: bool = True) -> np.ndarray:
         """Add configurations ``Q: (m, d)`` and connect each to its ``k_PRM*(n_total)`` nearest.
@@ -221,7 +227,7 @@ class Roadmap:
 
     def _segment_collides(self, q1, q2) -> bool:
         self.counters["segment_checks"] += 1
-        return bool(self.segment_fn(q1, q2))
+        return _name(self.segment_fn(_read_only(q1), _read_only(q2)), "segment_fn") != ""
 
     # ------------------------------------------------------------------ queries
     @property
@@ -271,15 +277,37 @@ class Roadmap:
         return self._segment_collides(np.asarray(q1, dtype=float), np.asarray(q2, dtype=float))
 
 
-def _name(hit) -> str:
-    """What a collision callable's answer says is hit: its name, ``UNNAMED`` for a bare truthy
-    answer, ``""`` for a falsy one (free)."""
+def _read_only(a) -> np.ndarray:
+    """A float copy of ``a`` that cannot be written to: what the user's callables receive, so
+    that one that changes its argument in place (wrapping angles, say) fails loudly instead of
+    moving the roadmap's vertices or the caller's start."""
+    a = np.array(a, dtype=float)
+    a.flags.writeable = False
+    return a
+
+
+def _numpy(answer):
+    """A torch tensor answer as a numpy array (a check written in torch), anything else as is."""
+    if hasattr(answer, "detach") and hasattr(answer, "cpu"):
+        return answer.detach().cpu().numpy()
+    return answer
+
+
+def _name(hit, what: str) -> str:
+    """What the collision callable ``what``'s answer for one configuration (or segment) says is
+    hit: its name, ``UNNAMED`` for a true answer, ``""`` for a false one (free). Anything else --
+    ``None`` (a missing ``return``), a number that is not a bool or 0/1, several values -- is a
+    ``ValueError``: read as "free" it would plan through obstacles."""
     if isinstance(hit, str):
         return hit
-    if np.size(hit) != 1:  # (an array was numpy's 'truth value ... is ambiguous')
-        raise ValueError(f"a collision callable must answer one configuration with a bool or a name, got "
-                         f"{type(hit).__name__} of shape {np.shape(hit)}")
-    return UNNAMED if hit else ""
+    if hit is None:
+        raise ValueError(f"{what} returned None: it must answer True (collides), False (free) or the name "
+                         "of what it hits (a missing return?)")
+    a = np.asarray(_numpy(hit))
+    if a.size != 1 or a.dtype.kind not in "biu" or a.reshape(()).item() not in (0, 1):
+        got = f"of shape {a.shape}" if a.size != 1 else f"{hit!r:.60}"
+        raise ValueError(f"{what} must answer one configuration with a bool or a name, got {type(hit).__name__} {got}")
+    return UNNAMED if a.reshape(()).item() else ""
 
 
 def mixed_samples(sample_fn: Callable, n: int, biased_samples: np.ndarray, bias_fraction: float,

@@ -161,6 +161,12 @@ class TaskPlanner:
                 raise ValueError(f"sample_fn({n - m}) must return {n - m} finite configurations, shape "
                                  f"({n - m}, {self.kin.dof}); got shape {Q.shape}"
                                  + ("" if Q.shape != (n - m, self.kin.dof) else " with NaN or inf"))
+            lo, hi = self.kin.lower.cpu().numpy(), self.kin.upper.cpu().numpy()
+            outside = np.any((Q < lo - LIMIT_TOLERANCE) | (Q > hi + LIMIT_TOLERANCE), axis=1)
+            if outside.any():  # (samples in degrees became vertices no plan should reach)
+                i = int(np.flatnonzero(outside)[0])
+                raise ValueError(f"sample_fn({n - m}) returned {int(outside.sum())} configurations outside the "
+                                 f"joint limits (radians), e.g. {self._outside_limits(Q[i])}")
             parts.append(Q)
         return self._rng.permutation(np.concatenate(parts, axis=0))
 
