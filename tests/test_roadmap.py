@@ -198,20 +198,19 @@ def test_torch_answers_read_like_numpy_ones():
 
 
 def test_callables_cannot_change_the_roadmaps_configurations():
-    """A check that writes into its argument (wrapping angles, say) fails loudly; before, it
-    moved the roadmap's vertices and the caller's array."""
+    """A check that writes into its argument (wrapping angles, say) moved the roadmap's vertices
+    and the caller's array; it now gets a copy."""
     def wraps(q):
-        q[0] = 0.123
+        q[..., 0] = 0.123
         return False
 
     Q = np.array([[0.5, 0.5], [0.6, 0.6]])
-    with pytest.raises(ValueError, match="read-only"):
-        Roadmap(2, wraps, segment_hits_box).hits(Q)
-    with pytest.raises(ValueError, match="read-only"):
-        Roadmap(2, None, segment_hits_box, batch_collision_fn=lambda Q: wraps(Q) or [False] * len(Q)).hits(Q)
-    with pytest.raises(ValueError, match="read-only"):
-        Roadmap(2, in_box, lambda a, b: wraps(a)).segment_collides(Q[0], Q[1])
-    assert Q.tolist() == [[0.5, 0.5], [0.6, 0.6]]
+    rm = Roadmap(2, wraps, lambda a, b: wraps(a))
+    assert rm.add_vertices(Q).tolist() == [0, 1]
+    assert not rm.segment_collides(Q[0], Q[1])
+    batch = Roadmap(2, None, lambda a, b: False, batch_collision_fn=lambda Q: wraps(Q) or [False] * len(Q))
+    batch.add_vertices(Q)
+    assert Q.tolist() == [[0.5, 0.5], [0.6, 0.6]] == rm.vertices.tolist() == batch.vertices.tolist()
 
 
 def test_biased_samples_are_used_first_and_filtered():
@@ -263,3 +262,35 @@ def test_a_collision_callable_answering_in_another_shape_is_refused_by_name():
     rm = Roadmap.build(uniform(rng), 10, lambda q: False, lambda a, b: False,
                        batch_collision_fn=lambda Q: np.zeros((len(Q), 1), dtype=bool))  # (B, 1) stays accepted
     assert rm.n == 10
+
+
+def test_candidates_an_object_blocked_are_readmitted_when_it_leaves():
+    """A box named "box" blocks part of the square while the roadmap is built: its candidates are
+    set aside, not lost. Once it has moved, ``readmit("box")`` adds those now free (the
+    vacated part is sampled again, like a fresh roadmap's) and keeps those it still hits aside;
+    what hits the fixed "wall" or an unnamed obstacle is never readmitted."""
+    place = {"box": np.array([0.0, 0.0])}
+
+    def hits(q):
+        if q[0] > 0.8:
+            return "wall"
+        return "box" if np.all(np.abs(q - place["box"]) <= 0.3) else ""
+
+    rng = np.random.default_rng(3)
+    rm = Roadmap.build(uniform(rng), 300, hits, lambda a, b: False)
+    in_old = lambda V: np.all(np.abs(V) <= 0.3, axis=1)  # noqa: E731
+    assert rm.n == 300 and not in_old(rm.vertices).any()
+    aside = rm.n_set_aside
+    assert aside > 20  # about 300 * 0.09 / 0.81 box candidates, and the wall's
+    place["box"] = np.array([-0.5, -0.5])  # half over its old place, half beyond
+    new = rm.readmit("box")
+    V = rm.vertices[new]
+    assert len(new) > 10 and in_old(V).all() and not np.any(np.all(np.abs(V - place["box"]) <= 0.3, axis=1))
+    assert rm.readmit("wall").size == 0  # (it did not move: its candidates still hit it)
+    assert rm.counters["readmitted"] == len(new)
+    assert rm.readmit("box").size == 0  # (nothing moved since: those still hit stay aside)
+    # every new vertex is joined to the roadmap like any other (k nearest)
+    assert all(rm.graph.degree(int(v)) >= rm.k(rm.n) for v in new[:5])
+    unnamed = Roadmap.build(uniform(np.random.default_rng(3)), 100, lambda q: bool(np.all(np.abs(q) <= 0.3)),
+                            lambda a, b: False)
+    assert unnamed.n_set_aside == 0

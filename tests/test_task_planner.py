@@ -690,3 +690,44 @@ def test_a_continuous_joint_plans_and_a_joint_without_a_velocity_limit_is_refuse
     assert np.all(np.isfinite(planner.roadmap.vertices))
     with pytest.raises(ValueError, match=r"joint\(s\) \['j2'\] have no velocity limit in arm3_continuous.urdf"):
         TaskPlanner(model_of(arm3(tmp_path, limit="")), lambda q: False, lambda a, b: False)
+
+
+def test_a_landmark_that_leaves_gives_back_the_candidates_it_blocked(kin):
+    """A sensed 'post' around the middle of the free plan's tool path while the roadmap is built:
+    the candidates whose tool point it held are set aside; once it has moved away, the next
+    growth (``update_landmarks``, then ``grow``) makes them vertices, where the post stood."""
+    model = _model(kin)
+    tool = model.tool.detach()
+    R = 0.25
+
+    def tip(Q):  # (N, 7) -> (N, 3) tool points
+        T = kin.fk(torch.as_tensor(np.array(np.atleast_2d(Q))))
+        return (T[:, :3, :3] @ tool + T[:, :3, 3]).numpy()
+
+    far = np.array([0.0, 0.0, 5.0])
+    place = {"post": far}
+
+    def cf(q):
+        return "post" if np.linalg.norm(tip(q)[0] - place["post"]) < R else ""
+
+    def poses(centre):
+        P = np.stack([np.eye(4), np.eye(4)])
+        P[1, :3, 3] = centre
+        return P
+
+    settings = TaskPlannerSettings(n_vertices=150, seed=0)
+    q0 = model.mu[0, :7].numpy()
+    free = TaskPlanner(model, cf, lambda a, b: False, settings=settings)
+    free.update_landmarks(["bowl", "post"], poses(far))
+    path = free.plan(q0, 0).configurations
+    place["post"] = centre = tip(path[len(path) // 2])[0]
+    p = TaskPlanner(model, cf, lambda a, b: False, settings=settings)
+    p.update_landmarks(["bowl", "post"], poses(centre))
+    aside, n = p.roadmap.n_set_aside, p.roadmap.n
+    assert aside >= 2 and not (np.linalg.norm(tip(p.roadmap.vertices) - centre, axis=1) < R).any()
+    place["post"] = far
+    p.update_landmarks(["bowl", "post"], poses(far))  # (grow=True: the growth runs now)
+    assert p.stats["readmitted_vertices"] == aside and p.roadmap.n_set_aside == 0
+    back = tip(p.roadmap.vertices[n:n + aside])
+    assert (np.linalg.norm(back - centre, axis=1) < R).all()
+    assert p.plan(q0, 0).ok

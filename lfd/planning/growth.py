@@ -157,7 +157,7 @@ class BiasedGrowth:
                                                          free_posture=free_posture)
         g.reached |= reached.reshape(-1, steps).any(0)
         free = valid.copy()
-        free[valid] = ~rm.in_collision(Q[valid])
+        free[valid] = rm.free_or_set_aside(Q[valid])
         ids = np.full(len(Q), -1)
         ids[free] = rm.add_vertices(Q[free], check=False)
         rm.add_edges(ids[chain_edges(free, steps)])

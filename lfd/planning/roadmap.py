@@ -16,6 +16,10 @@ incrementally: new vertices are joined to their nearest among old and new vertic
 kept, nothing is rebuilt except the k-d tree (O(n log n), milliseconds at n = 10^4).
 
 The roadmap holds structure only: vertices are collision-checked when added, edges are not.
+A candidate configuration that hits something the collision callables name (a sensed object,
+say) is set aside rather than forgotten: ``readmit(name)`` checks those that hit ``name`` again
+once it has moved, and adds the free ones, so that a space an object blocked while the roadmap
+was built is sampled again when it leaves (as a fresh roadmap would be).
 Whether an edge is collision-free is edge state, owned with the edge costs by
 ``lfd.planning.edgestore.EdgeStore`` (checked lazily on the paths a search returns, invalidated near
 objects that move). Edges are never removed, so edge ids stay valid for every cache.
@@ -97,7 +101,9 @@ class Roadmap:
         self._tree: cKDTree | None = None
         self._ends = np.empty((0, 2), dtype=np.int64)  # (E, 2) vertex ids by edge id
         self._pending: list[tuple[int, int]] = []  # edges added since _ends was last extended
-        self.counters = {"vertex_checks": 0, "segment_checks": 0, "edges_removed": 0}
+        self._aside = np.empty((0, self.d))  # (k, d) candidates that hit a named thing (``readmit``)
+        self._aside_what = np.empty(0, dtype=str)  # (k,) what each hit
+        self.counters = {"vertex_checks": 0, "segment_checks": 0, "edges_removed": 0, "readmitted": 0}
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -121,17 +127,17 @@ class Roadmap:
         chunks, have = [], 0
         if biased_samples is not None:
             B = rm._check_Q(biased_samples, "biased_samples")[:n]
-            B = B[~rm.in_collision(B)]
+            B = B[rm.free_or_set_aside(B)]
             chunks.append(B)
             have = len(B)
-        first = first[~rm.in_collision(first)]
+        first = first[rm.free_or_set_aside(first)]
         chunks.append(first)
         have += len(first)
         for _ in range(settings.max_sample_rounds):
             if have >= n:
                 break
             Q = rm._check_Q(sample_fn(n - have), "sample_fn(n)")
-            Q = Q[~rm.in_collision(Q)]
+            Q = Q[rm.free_or_set_aside(Q)]
             chunks.append(Q)
             have += len(Q)
         Q = np.concatenate(chunks, axis=0)[:n] if chunks else np.empty((0, rm.d))
@@ -151,7 +157,7 @@ class Roadmap:
     def hits(self, Q: np.ndarray) -> np.ndarray:
         """Q: (n, d) -> (n,) str: what each configuration hits, ``""`` where it is free; the
         collision callables' names when they give them, else ``UNNAMED``."""
-        Q = _read_only(self._check_Q(Q, "Q"))  # (the callables get a copy they cannot write to)
+        Q = _copy(self._check_Q(Q, "Q"))  # (the callables get a copy: their writes change nothing here)
         self.counters["vertex_checks"] += len(Q)
         if len(Q) == 0:
             return np.zeros(0, dtype=str)
@@ -176,15 +182,48 @@ class Roadmap:
             return np.where(out.astype(bool), UNNAMED, "")
         return np.array([_name(self.collision_fn(q), "collision_fn") for q in Q])
 
+    def free_or_set_aside(self, Q: np.ndarray) -> np.ndarray:
+        """``Q: (n, d) -> (n,) bool``, True where the configuration is free. Those that hit a
+        named thing are set aside for ``readmit`` (those hitting an unnamed one are dropped: no
+        move can be told to free them)."""
+        Q = self._check_Q(Q, "Q")
+        what = self.hits(Q)
+        named = (what != "") & (what != UNNAMED)
+        if named.any():
+            self._aside = np.concatenate([self._aside, Q[named]])
+            self._aside_what = np.concatenate([self._aside_what, what[named]])
+        return what == ""
+
+    @property
+    def n_set_aside(self) -> int:
+        """Candidate configurations set aside because they hit a named thing."""
+        return len(self._aside)
+
+    def readmit(self, name: str, limit: int | None = None) -> np.ndarray:
+        """Check again the configurations set aside for hitting ``name`` (which has moved): the
+        free ones become vertices (at most ``limit``; the surplus is dropped), the rest are set
+        aside again under what they hit now. Returns the new vertex ids ``(m,)``."""
+        pick = self._aside_what == str(name)
+        if not pick.any():
+            return np.zeros(0, dtype=int)
+        Q = self._aside[pick]
+        self._aside, self._aside_what = self._aside[~pick], self._aside_what[~pick]
+        Q = Q[self.free_or_set_aside(Q)]
+        if limit is not None:
+            Q = Q[:max(0, int(limit))]
+        self.counters["readmitted"] += len(Q)
+        return self.add_vertices(Q, check=False)
+
     def add_vertices(self, Q: np.ndarray, check: bool = True) -> np.ndarray:
         """Add configurations ``Q: (m, d)`` and connect each to its ``k_PRM*(n_total)`` nearest.
 
-        Colliding configurations are dropped when ``check``. Returns the new vertex ids ``(m',)``.
-        Existing vertices and edges are kept; only the k-d tree is rebuilt.
+        Colliding configurations are left out when ``check`` (set aside, ``free_or_set_aside``).
+        Returns the new vertex ids ``(m',)``. Existing vertices and edges are kept; only the k-d
+        tree is rebuilt.
         """
         Q = self._check_Q(Q, "Q")
         if check and len(Q):
-            Q = Q[~self.in_collision(Q)]
+            Q = Q[self.free_or_set_aside(Q)]
         m = len(Q)
         if m == 0:
             return np.zeros(0, dtype=int)
@@ -227,7 +266,7 @@ class Roadmap:
 
     def _segment_collides(self, q1, q2) -> bool:
         self.counters["segment_checks"] += 1
-        return _name(self.segment_fn(_read_only(q1), _read_only(q2)), "segment_fn") != ""
+        return _name(self.segment_fn(_copy(q1), _copy(q2)), "segment_fn") != ""
 
     # ------------------------------------------------------------------ queries
     @property
@@ -277,13 +316,12 @@ class Roadmap:
         return self._segment_collides(np.asarray(q1, dtype=float), np.asarray(q2, dtype=float))
 
 
-def _read_only(a) -> np.ndarray:
-    """A float copy of ``a`` that cannot be written to: what the user's callables receive, so
-    that one that changes its argument in place (wrapping angles, say) fails loudly instead of
-    moving the roadmap's vertices or the caller's start."""
-    a = np.array(a, dtype=float)
-    a.flags.writeable = False
-    return a
+def _copy(a) -> np.ndarray:
+    """A float copy of ``a``: what the user's callables receive, so that one that changes its
+    argument in place (wrapping angles, say) cannot move the roadmap's vertices or the caller's
+    start. (A read-only view would fail such a callable loudly, but torch warns on every
+    ``torch.as_tensor`` of one, the usual first line of a check written in torch.)"""
+    return np.array(a, dtype=float)
 
 
 def _numpy(answer):

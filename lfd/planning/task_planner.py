@@ -122,6 +122,7 @@ class TaskPlanner:
         self.batch_collision_fn = batch_collision_fn
         self._landmarks: torch.Tensor | None = None  # (Z, 4, 4) kept landmarks, model order
         self._sensed: dict[str, np.ndarray] = {}  # every sensed landmark's last position (3,)
+        self._vacated: set[str] = set()  # landmarks that moved since the last growth (``Roadmap.readmit``)
         self.growth_pending = False
         self._n_bias = int(round(settings.bias_fraction * self.n_vertices))  # the build's biased vertices
         regrow = settings.regrow_vertices
@@ -135,9 +136,10 @@ class TaskPlanner:
     @property
     def stats(self) -> dict:
         """Counters: roadmap vertices, biased ones among them, regrowths, edges invalidated by
-        landmarks that moved."""
-        return {"vertices": self.roadmap.n if self.roadmap is not None else 0,
-                "invalidated_edges": self._invalidated_edges, **self._growth.stats}
+        landmarks that moved, vertices readmitted where a landmark left."""
+        rm = self.roadmap
+        return {"vertices": rm.n if rm is not None else 0, "invalidated_edges": self._invalidated_edges,
+                "readmitted_vertices": rm.counters["readmitted"] if rm is not None else 0, **self._growth.stats}
 
     # -- sampling -------------------------------------------------------------------------
     def region_samples(self, n: int) -> np.ndarray:
@@ -220,12 +222,15 @@ class TaskPlanner:
             if self.planner is not None and old is not None and np.all(np.isfinite(pos)) \
                     and np.linalg.norm(pos - old) > 0.005:
                 self._invalidated_edges += self.planner.object_moved(old, pos, self.settings.object_radius, name)
+                self._vacated.add(name)
             if np.all(np.isfinite(pos)):
                 self._sensed[name] = pos.copy()
 
     def grow(self, rounds: int | None = None) -> bool:
         """Add biased vertices for the current landmarks if they moved far from every place the
-        roadmap was grown for (``regrow_distance``), and update the reachability verdict.
+        roadmap was grown for (``regrow_distance``), and update the reachability verdict. First,
+        the candidates set aside for hitting a landmark that has moved since are checked again
+        and the free ones added (``Roadmap.readmit``).
 
         ``rounds``: how many sampling rounds to run now (None: all). A regrowth takes a few
         rounds (``lfd.planning.growth``); with ``rounds=1`` each call runs one and ``growth_pending``
@@ -237,6 +242,10 @@ class TaskPlanner:
         if self.roadmap is None or self._landmarks is None:
             return False
         before = self.roadmap.n
+        room = self._growth.max_vertices - before
+        for name in sorted(self._vacated):  # the candidates those landmarks blocked, checked again
+            room -= len(self.roadmap.readmit(name, limit=room))
+        self._vacated.clear()
         self._growth.grow(self.roadmap, self._landmarks, rounds)
         self.growth_pending = self._growth.pending
         return self.roadmap.n > before
