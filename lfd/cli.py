@@ -200,13 +200,8 @@ def check_task_name(text: str) -> str:
 
 def check_device_available(text: str) -> None:
     """``UsageError`` when this machine cannot put a tensor on the device ``text``."""
-    import torch
-    dev = torch.device(check_device(text))
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise UsageError(f"--device {text}: torch.cuda.is_available() is False on this machine")
-    if dev.type == "meta":  # tensors there have shapes but no values: nothing can be computed
-        raise UsageError(f"--device {text}: the meta device holds no data; use cpu, cuda or mps")
+    from lfd.robot.device import usable_device
     try:
-        torch.zeros(1, device=dev) + 1
-    except (RuntimeError, AssertionError, ValueError, ImportError) as e:
-        raise UsageError(f"--device {text}: this machine's torch cannot use it ({error_line(e)})") from None
+        usable_device(check_device(text), what="--device")
+    except ValueError as e:
+        raise UsageError(error_line(e)) from None

@@ -248,3 +248,30 @@ def test_the_kinematic_model_follows_the_models_dtype_and_must_be_its_robots(tmp
         TaskModel.load(tmp_path, dtype="float32")
     with pytest.raises(ValueError, match="device must be a torch device .* got 'gpu'"):
         TaskModel.load(tmp_path, device="gpu")
+
+
+def test_a_device_this_machine_lacks_is_refused_where_it_is_given(tmp_path):
+    """``cuda`` without a GPU (``mps`` without Apple's) raised torch's "Torch not compiled with
+    CUDA enabled" from deep inside the first tensor's move; now a ValueError names the device
+    where it is given: ``usable_device``, ``KinematicModel``, ``TaskModel.load`` and ``.to``."""
+    from lfd.robot.device import usable_device
+    from lfd.robot.kinematics import KinematicModel
+    assert usable_device("cpu") == torch.device("cpu")
+    missing = [d for d, ok in (("cuda", torch.cuda.is_available()), ("mps", torch.backends.mps.is_available()))
+               if not ok]
+    for bad, why in [*((d, "is_available\\(\\) is False") for d in missing), ("meta", "holds no data"),
+                     ("gpu", "must be a torch device")]:
+        with pytest.raises(ValueError, match=why):
+            usable_device(bad)
+        with pytest.raises(ValueError, match=why):
+            KinematicModel.from_spec(device=bad)
+    if torch.cuda.is_available():
+        with pytest.raises(ValueError, match="CUDA device"):
+            usable_device(f"cuda:{torch.cuda.device_count()}")
+    if missing:
+        model = _model()
+        model.save(tmp_path)
+        with pytest.raises(ValueError, match="is_available"):
+            TaskModel.load(tmp_path, device=missing[0])
+        with pytest.raises(ValueError, match="is_available"):
+            model.to(device=missing[0])

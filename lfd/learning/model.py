@@ -38,6 +38,7 @@ import torch
 from lfd.errors import UserInputError
 from lfd.learning.dtw import OFFSETS
 from lfd.learning.tasks import FEATURE_SETS, TASK_VECTORS, TaskSpec, check_names
+from lfd.robot.device import usable_device
 from lfd.robot.robots import RobotSpec
 
 __all__ = [
@@ -341,6 +342,7 @@ class TaskModel:
 
     def to(self, dtype: torch.dtype | None = None, device=None) -> TaskModel:
         """A copy with another dtype and/or device (the kinematic model follows)."""
+        device = None if device is None else usable_device(device)
         new = object.__new__(TaskModel)
         new.__dict__.update(self.__dict__)
         for k in self._TENSORS:
@@ -426,10 +428,7 @@ class TaskModel:
         """
         if not (isinstance(dtype, torch.dtype) and dtype.is_floating_point):  # was reported as a damaged folder
             raise TypeError(f"dtype must be a floating-point torch.dtype (torch.float64, torch.float32), got {dtype!r}")
-        try:
-            device = torch.device(device)
-        except (RuntimeError, TypeError) as e:
-            raise ValueError(f"device must be a torch device (cpu, cuda, cuda:1, ...), got {device!r}") from e
+        device = usable_device(device)
         model_dir = Path(model_dir)
         cfg_path, pt_path = model_dir / "config.json", model_dir / "model.pt"
         for p in (cfg_path, pt_path):

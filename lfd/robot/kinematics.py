@@ -19,6 +19,7 @@ from pathlib import Path
 import torch
 
 from lfd.errors import UserInputError
+from lfd.robot.device import usable_device
 from lfd.robot.robots import BAXTER_LEFT, RobotSpec, resolve_urdf
 
 __all__ = ["KinematicModel", "KinematicsError"]
@@ -161,7 +162,7 @@ class KinematicModel:
         self.end_link = end_link
         self.joint_names = joint_names
         self.dtype = dtype
-        self.device = torch.device(device)
+        self.device = usable_device(device)
         self._chain = chain.to(dtype=dtype, device=self.device)
         inf = float("inf")
         self.lower = torch.tensor([joints[n]["lower"] if joints[n]["lower"] is not None else -inf
@@ -194,7 +195,7 @@ class KinematicModel:
         new = object.__new__(KinematicModel)
         new.__dict__.update(self.__dict__)
         new.dtype = dtype or self.dtype
-        new.device = torch.device(device) if device is not None else self.device
+        new.device = usable_device(device) if device is not None else self.device
         # pytorch-kinematics converts a chain in place: convert a copy, never the original.
         new._chain = copy.deepcopy(self._chain).to(dtype=new.dtype, device=new.device)
         for k in ("lower", "upper", "velocity"):
