@@ -312,9 +312,6 @@ def _fit_config(args, ds, demos_dir: Path):
     if step > MAX_STEP:  # DemoSet.subsample's TaskSpec would refuse it mid-fit, as a traceback
         raise UsageError(f"--subsample {kw['subsample']}: a time step of {step:g} s, more than a task's "
                          f"{MAX_STEP:g} s; keep more of the samples")
-    if kw.get("subsample", 1) > 1 and ds.task is None:
-        raise UsageError(f"--subsample {kw['subsample']}: {demos_dir} has no task.json, where the model's "
-                         f"sampling interval is kept; add one (lfd.learning.tasks.TaskSpec) or leave --subsample out")
     try:
         cfg = FitConfig(**kw)
     except ValueError as e:
@@ -364,6 +361,20 @@ def _demo_set(args):
     ds = load_demos(demos_dir, time_steps=args.time_steps)
     if ds.task is not None and ds.task.name != args.task:
         raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")
+    if ds.task is None:  # (the model then named no task nor time step, which planning needs)
+        from dataclasses import replace
+
+        from lfd.learning.tasks import TaskSpec
+        try:
+            task = TaskSpec(name=args.task, dt=ds.dt, **({} if args.time_steps is None else
+                                                        {"time_steps": args.time_steps}))
+        except ValueError as e:
+            raise UsageError(f"--demos {demos_dir} has no task.json, and task {args.task!r} at the "
+                             f"demonstrations' dt={ds.dt:g} s is not a task: {e}") from e
+        ds = replace(ds, task=task)
+        print(f"note: {demos_dir} has no task.json: task {args.task!r} is learned at the demonstrations' "
+              f"dt={ds.dt:g} s; a task.json would give its hand-picked tool point and reference landmark "
+              f"(docs/RECORDINGS.md)", flush=True)
     return ds, demos_dir
 
 

@@ -334,6 +334,31 @@ def test_names_given_as_one_string_are_refused(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
+def test_save_refuses_what_load_would_and_makes_the_folder(tmp_path):
+    """save_demonstration wrote NaN, a transposed q, 6 of 7 columns, a negative dt, no samples and
+    3 poses for 2 names, each refused only when the set was loaded; and it failed on a folder
+    not yet made (the README's example). Now each is refused before anything is written."""
+    from lfd.learning.demos import save_demonstration
+    from lfd.learning.demoset import Demonstration
+    d = _demoset().demos[0]
+    q = np.array(d.q)
+    nan = q.copy()
+    nan[2, 3] = np.nan
+    cases = [(Demonstration(q=nan, dt=d.dt, landmarks=d.landmarks), "holds NaN"),
+             (Demonstration(q=q.T, dt=d.dt, landmarks=d.landmarks), "columns but 'joint_names' names 7"),
+             (Demonstration(q=q[:, :6], dt=d.dt, landmarks=d.landmarks), "6 columns"),
+             (Demonstration(q=q, dt=-0.1, landmarks=d.landmarks), "must be positive"),
+             (Demonstration(q=q[:0], dt=d.dt, landmarks=d.landmarks), "at least 2"),
+             (Demonstration(q=q, dt=d.dt, landmarks=np.tile(np.eye(4), (len(NAMES) + 1, 1, 1))), "must have shape")]
+    for demo, fragment in cases:
+        with pytest.raises(DemoFormatError, match=fragment):
+            save_demonstration(tmp_path / "new" / "d.npz", demo, BAXTER_LEFT.joint_names, NAMES, BAXTER_LEFT)
+    assert not list(tmp_path.iterdir())
+    path = save_demonstration(tmp_path / "new" / "deeper" / "d", d, BAXTER_LEFT.joint_names, NAMES, BAXTER_LEFT)
+    assert path == tmp_path / "new" / "deeper" / "d.npz" and path.is_file()
+    np.testing.assert_array_equal(load_demos(path.parent, time_steps=2).demos[0].q, q)
+
+
 def test_a_demonstration_holds_lists_as_arrays():
     """Demonstration(q=list).n_samples was an AttributeError."""
     from lfd.learning.demoset import Demonstration

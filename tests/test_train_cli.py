@@ -81,13 +81,6 @@ def _bad_task_json(d, good):
     return ["train.py", "--task", "powder", "--demos", str(d / "demos"), "--out", str(d / "out"), *RUN]
 
 
-def _no_task_json(d, good):
-    shutil.copytree(good, d / "demos")
-    (d / "demos" / "task.json").unlink()
-    return ["train.py", "--task", "powder", "--demos", str(d / "demos"), "--out", str(d / "out"), *RUN,
-            "--subsample", "2"]
-
-
 def _task_json_subsample(d, good):
     shutil.copytree(good, d / "demos")
     task = json.loads((d / "demos" / "task.json").read_text())
@@ -226,7 +219,6 @@ CASES = [
     ("subsample-step", _train("--subsample", "101"), "--subsample 101: a time step of 10.1 s, more than a task's 10 s"),
     ("subsample-step-task-json", _task_json_subsample,  # named --subsample, which was not given
      "task.json: not a valid task definition: TaskSpec.subsample 1000: a time step of 100 s learned, more than 10"),
-    ("subsample-no-task-json", _no_task_json, "has no task.json, where the model's sampling interval is kept"),
     ("subsample-word", _train("--subsample", "half"), "argument --subsample: invalid int value: 'half'"),
     ("floor-zero", _train("--floor-task", "0"),
      "FitConfig.floor_joint, floor_task and floor_attitude must be positive standard deviations, got 0.001, 0.0, 0.01"),
@@ -642,6 +634,19 @@ def test_a_users_own_task_trains_and_plans_without_the_simulator(tmp_path, capsy
                             "demonstrations of task 'reach', not 'powder'")):
         bad = run_cli(main, "lfd-train", argv, capsys)
         assert bad.returncode == 2 and fragment in bad.stderr and bad.stderr.count("\n") == 1, bad.stderr
+    # the same set without its task.json (the README's own-demonstrations path): trained as task
+    # 'reach' at the files' dt, with a note (the model named no task, so no planner could use it
+    # without dt=, and --subsample was refused)
+    (tmp_path / "demos" / "task.json").unlink()
+    r = run_cli(main, "lfd-train", ["--task", "reach", "--demos", str(tmp_path / "demos"), "--out",
+                                    str(tmp_path / "bare"), *RUN, "--subsample", "2", "--quiet"], capsys)
+    assert r.returncode == 0, r.stderr
+    assert "has no task.json: task 'reach' is learned at the demonstrations' dt=0.1 s" in r.stdout
+    bare = TaskModel.load(tmp_path / "bare", kin=kin)
+    assert bare.task is not None and (bare.task.name, bare.task.dt, bare.time_steps) == ("reach", 0.2, 4)
+    bare_planner = TaskPlanner(bare, lambda q: False, lambda a, b: False, settings=TaskPlannerSettings(n_vertices=60))
+    bare_planner.update_landmarks(list(ds.landmark_names), poses)
+    assert bare_planner.plan(ds.demos[0].q[0], 0).ok
 
 
 def test_summary_names_the_distance_to_each_reference_point(synth_dir, tmp_path, capsys):

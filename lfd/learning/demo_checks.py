@@ -164,13 +164,15 @@ def _landmark_poses(where: str, value, names: tuple, n_samples: int, dt: float) 
 
 def check_demonstration(where: str, demo: Demonstration, joint_names, landmark_names) -> Demonstration:
     """``demo`` checked on its own against its set's names (``where`` starts each message): ``q``
-    finite ``(S, d)``, one column per joint name; ``dt`` in ``(0, MAX_DT]``; its landmark poses
+    finite ``(S, d)``, S >= 2, one column per joint name; ``dt`` in ``(0, MAX_DT]``; its landmark poses
     as ``_landmark_poses`` checks them. Returned with float64 arrays. The checks of a file's
     arrays (``load_demos``) and of a ``DemoSet`` built in Python (``check_demoset``)."""
     q = _as_float(where, "q", np.asarray(demo.q), 2)
     if q.shape[1] != len(joint_names):
         raise DemoFormatError.at(where, f"key 'q' has {q.shape[1]} columns but 'joint_names' names {len(joint_names)} "
                                         f"joints")
+    if len(q) < 2:  # (no motion; a set's loader said so only against the model's time steps)
+        raise DemoFormatError.at(where, f"key 'q' has {len(q)} sample(s); a demonstration needs at least 2")
     dt = _as_float(where, "dt", np.asarray(demo.dt), 0)
     if not 0 < dt <= MAX_DT:
         hint = " (milliseconds given as seconds?)" if dt > MAX_DT else ""

@@ -59,16 +59,25 @@ REQUIRED_KEYS = ("q", "dt", "joint_names", "landmark_poses", "landmark_names", "
 
 def save_demonstration(path: str | Path, demo: Demonstration, joint_names, landmark_names,
                        robot: RobotSpec) -> Path:
-    """Write one demonstration as an ``.npz`` of the documented format."""
+    """Write one demonstration as an ``.npz`` of the documented format (its folder is made if
+    missing). What ``load_demos`` would refuse in the file -- a shape, NaN, a sampling interval, a
+    name -- is refused here, before anything is written (``DemoFormatError``)."""
     check_names(joint_names, "joint_names")
     check_names(landmark_names, "landmark_names")
     path = Path(path)
-    np.savez(path, q=np.asarray(demo.q, dtype=np.float64), dt=np.float64(demo.dt),
-             joint_names=np.array(list(joint_names), dtype=str),
-             landmark_poses=np.asarray(demo.landmarks, dtype=np.float64),
-             landmark_names=np.array(list(landmark_names), dtype=str),
-             robot=np.array(json.dumps(robot.to_dict())))
-    return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
+    path = path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
+    try:
+        raw = {"q": np.asarray(demo.q, dtype=np.float64), "dt": np.asarray(demo.dt, dtype=np.float64),
+               "joint_names": np.array(list(joint_names), dtype=str),
+               "landmark_poses": np.asarray(demo.landmarks, dtype=np.float64),
+               "landmark_names": np.array(list(landmark_names), dtype=str),
+               "robot": np.array(json.dumps(robot.to_dict()))}
+    except (TypeError, ValueError) as e:  # ragged rows, a dt that is not a number
+        raise DemoFormatError.at(str(path), f"not an array of numbers: {e}") from e
+    _check_one(path, raw)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(path, **raw)
+    return path
 
 
 def save_demos(out_dir: str | Path, demoset: DemoSet) -> list[Path]:
