@@ -103,7 +103,7 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                          "(the pour's scenes keep it still otherwise; the powder's always move it)")
     ap.add_argument("--video", action="store_true", help="write a GIF of the first scenario of each variant")
     ap.add_argument("--out", type=path_arg, default=None, metavar="DIR",
-                    help="output folder (default: <model>/plans, or ./runs/<task>/eval with --evaluate)")
+                    help="output folder (default: ./runs/<task>/plans, or ./runs/<task>/eval with --evaluate)")
     return ap
 
 
@@ -201,7 +201,7 @@ def main(argv=None, prog: str = PROG) -> int:
     if args.gui and no_display():  # (a RuntimeError traceback after the model was loaded)
         raise UsageError(f"--gui: {no_display()}; plan without it (--plot draws the plan)")
     _, task_name = load_checked_model(args.model, args.task)  # landmarks, robot, task: before any simulation
-    out = writable_dir(args.out or args.model / "plans")
+    out = writable_dir(args.out or Path("runs") / task_name / "plans")  # (not into the model's folder: it may be shared)
     scenario = draw_scenario(task_name, args.scenario_seed)
     report, res, model = plan_scenario(args.model, scenario, args.roadmap_size, gui=args.gui,
                                        execute=args.execute, latency=args.latency)

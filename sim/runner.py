@@ -72,7 +72,8 @@ def run_one(task: str, scenario: Scenario, variant, model_dir: str, roadmap_size
     out = res.to_dict(with_path=with_path)
     out.update(scenario=scenario.seed, variant=variant.name, wall_s=time.perf_counter() - tic,
                roadmap_size=planner.n_vertices, latency=str(latency), pace=EXEC_PACE,
-               roadmap_vertices=planner.roadmap.n if planner.roadmap is not None else 0)
+               roadmap_vertices=planner.roadmap.n if planner.roadmap is not None else 0,
+               readmitted_vertices=planner.stats["readmitted_vertices"])
     return out
 
 

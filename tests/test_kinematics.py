@@ -168,6 +168,10 @@ def test_the_urdf_is_read_without_the_parsers_complaints(tmp_path, capfd):
     q[1] = 0.3
     q[2, ::2] = -0.5
     assert torch.allclose(kin.fk(q), KinematicModel.from_spec(BAXTER_LEFT).fk(q), atol=1e-12)
+    from lfd.robot.robots import PANDA  # its joints' dynamics carry attributes the parser lacks (mu_coulomb)
+    capfd.readouterr()
+    KinematicModel.from_spec(PANDA)
+    assert capfd.readouterr().err == ""
 
 
 @pytest.mark.parametrize("old,new,fragment", [

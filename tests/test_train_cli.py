@@ -272,7 +272,7 @@ CASES = [
     ("plan-evaluate-summary-list", _evaluate_summary("[]"), "a training summary is a JSON object, got list"),
 ]
 NO_OUTPUT = {  # refused before anything was simulated or written
-    "plan-model-other-landmarks": "m/plans", "plan-model-other-robot": "m/plans", "plan-model-other-task": "m/plans",
+    "plan-model-other-landmarks": "runs", "plan-model-other-robot": "runs", "plan-model-other-task": "runs",
     "plan-evaluate-other-landmarks": "eval", "plan-evaluate-other-task": "eval",
     "plan-evaluate-demos-no-task-json": "models/learn-learn",
     "plan-evaluate-demo-file-no-task-json": "models/learn-learn"}

@@ -76,7 +76,8 @@ def save_demonstration(path: str | Path, demo: Demonstration, joint_names, landm
         raise DemoFormatError.at(str(path), f"not an array of numbers: {e}") from e
     _check_one(path, raw)
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, **raw)
+    np.savez(path, q=raw["q"], dt=raw["dt"], joint_names=raw["joint_names"], landmark_poses=raw["landmark_poses"],
+             landmark_names=raw["landmark_names"], robot=raw["robot"])
     return path
 
 

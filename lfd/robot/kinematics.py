@@ -30,15 +30,18 @@ class KinematicsError(UserInputError):
 
 
 def _kinematic_urdf(root: ET.Element) -> bytes:
-    """The robot description with only what forward kinematics reads: its joints whole, its
-    links by name (their visuals, collisions and inertia dropped), nothing else (transmissions,
+    """The robot description with only what forward kinematics reads: its joints (without their
+    dynamics), its links by name (their visuals, collisions and inertia dropped), nothing else (transmissions,
     Gazebo tags). urdf_parser_py, which pytorch-kinematics parses with, prints every tag it does
     not model to stderr (a material inside a collision, a transmission): not errors for
     kinematics, and without them it has nothing to print."""
     out = ET.Element(root.tag, root.attrib)
     for child in root:
         if child.tag == "joint":
-            out.append(copy.deepcopy(child))
+            joint = copy.deepcopy(child)
+            for dyn in joint.findall("dynamics"):  # (the Panda's mu_coulomb: "Unknown attribute", per joint)
+                joint.remove(dyn)
+            out.append(joint)
         elif child.tag == "link":
             ET.SubElement(out, "link", child.attrib)
     return ET.tostring(out)
