@@ -28,10 +28,50 @@ PROG = "lfd-plan"
 MAX_ROADMAP = 100_000  # vertices: the spatiotemporal product holds T times as many (1e14 filled the memory)
 
 
+# Peak memory of a scene's planner, measured (``/usr/bin/time -v python plan.py --model M
+# --roadmap-size N --latency none``, docs/EXPERIMENTS.md): about 1 GB, plus 0.011 MB per vertex
+# and time step for the powder (24 steps: 1.1 GB at 1,940 vertices, 2.6 GB at 7,613), 0.018 MB
+# for the pour's attitude features (48 steps: 2.3 GB at 1,683, 6.5 GB at 6,505).
+BASE_MB, MB_PER_VERTEX_STEP = 1000.0, 0.02
+
+
 def check_roadmap_size(n: int | None) -> None:
     """``UsageError`` unless ``--roadmap-size`` ``n`` is None (the planner's default) or in [10, ``MAX_ROADMAP``]."""
     if n is not None and not 10 <= n <= MAX_ROADMAP:
         raise UsageError(f"--roadmap-size must be in [10, {MAX_ROADMAP}], got {n}")
+
+
+def available_mb() -> float | None:
+    """Memory this machine can give a new process now (MiB; ``MemAvailable``, else the physical
+    memory), None where neither can be read."""
+    import os
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) / 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 20
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_roadmap_memory(n: int | None, time_steps: int, processes: int = 1) -> None:
+    """``UsageError`` when ``processes`` roadmaps of ``n`` vertices (None: the default) for a
+    ``time_steps``-step model cannot even be built in this machine's available memory (the
+    kernel would kill the run without a word; the estimate: ``BASE_MB`` and ``MB_PER_VERTEX_STEP``).
+    The growth after a bowl move may add up to twice as many vertices again; that is not counted."""
+    from lfd.planning.task_settings import default_vertices
+    vertices = default_vertices(time_steps) if n is None else n
+    need = processes * (BASE_MB + MB_PER_VERTEX_STEP * vertices * time_steps)
+    have = available_mb()
+    if have is not None and need > have:
+        each = f" ({need / processes / 1024:.0f} GB in each of {processes} workers)" if processes > 1 else ""
+        raise UsageError(f"--roadmap-size {vertices}: a roadmap of {vertices} vertices for a {time_steps}-step model "
+                         f"needs about {need / 1024:.0f} GB{each}, and this machine has {have / 1024:.0f} GB "
+                         f"available; take fewer vertices{' or fewer --workers' if processes > 1 else ''}")
 
 
 def _seed_list(text: str) -> tuple[int, ...]:
@@ -61,7 +101,8 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                          "(single-plan mode; default: none, give it or --evaluate)")
     ap.add_argument("--scenario-seed", type=int, default=0, metavar="S", help="which scenario to plan in")
     ap.add_argument("--roadmap-size", type=int, default=None, metavar="N",
-                    help="PRM* vertices (default: 1000 per 24 time steps of the model)")
+                    help="PRM* vertices; refused when this machine's memory cannot hold them (default: 1000 per 24 "
+                         "time steps of the model)")
     ap.add_argument("--latency", default="measured", metavar="measured|none|SECONDS",
                     help="simulated time each plan costs while the robot moves on: its wall-clock time "
                          "(default: measured), none (the world waits: deterministic), or a fixed number of seconds")
@@ -168,6 +209,9 @@ def main(argv=None, prog: str = PROG) -> int:
             raise UsageError(f"--variants: unknown {unknown}; choose from {[v.name for v in VARIANTS]}")
         check_models_for_task([model_dir_for(models, v, k) for k in args.demo_seeds for v in VARIANTS
                                if v.name in variants], args.task)
+        if args.executor == "local":  # (Ray's workers have their own machines' memory)
+            from lfd.learning.tasks import task_from_name
+            check_roadmap_memory(args.roadmap_size, task_from_name(args.task).time_steps, args.workers)
         out = writable_dir(args.out or Path("runs") / args.task / "eval")
         try:
             from tqdm import tqdm as progress
@@ -200,7 +244,8 @@ def main(argv=None, prog: str = PROG) -> int:
     from sim.world import no_display
     if args.gui and no_display():  # (a RuntimeError traceback after the model was loaded)
         raise UsageError(f"--gui: {no_display()}; plan without it (--plot draws the plan)")
-    _, task_name = load_checked_model(args.model, args.task)  # landmarks, robot, task: before any simulation
+    checked, task_name = load_checked_model(args.model, args.task)  # landmarks, robot, task: before any simulation
+    check_roadmap_memory(args.roadmap_size, checked.time_steps)
     out = writable_dir(args.out or Path("runs") / task_name / "plans")  # (not into the model's folder: it may be shared)
     scenario = draw_scenario(task_name, args.scenario_seed)
     report, res, model = plan_scenario(args.model, scenario, args.roadmap_size, gui=args.gui,

@@ -671,3 +671,26 @@ def test_summary_names_the_distance_to_each_reference_point(synth_dir, tmp_path,
     printed = capsys.readouterr().out
     assert f"{dist['aim'] * 100:.1f} cm from the demonstrations' aim" in printed
     assert "cm from the demonstrator's hidden task point" in printed
+
+
+def test_a_roadmap_the_memory_cannot_hold_is_refused_before_the_build(tmp_path, monkeypatch, capsys):
+    """``--roadmap-size 100000`` (the largest accepted) needs about 50-95 GB: it was built until the
+    kernel killed the run. Refused in one line when the available memory cannot hold the build,
+    per worker with --evaluate; the default size of the built-in tasks fits in a few GB."""
+    import sim.plan_cli as cli
+    monkeypatch.setattr(cli, "available_mb", lambda: 4000.0)
+    cli.check_roadmap_memory(None, 48)  # the pour's default, 2000 vertices: 2.9 GB
+    cli.check_roadmap_memory(None, 24, processes=2)  # the powder's, twice: 2.9 GB
+    with pytest.raises(cli.UsageError, match=r"needs about 6 GB \(3 GB in each of 2 workers\), .* 4 GB available; "
+                                             r"take fewer vertices or fewer --workers"):
+        cli.check_roadmap_memory(None, 48, processes=2)
+    with pytest.raises(cli.UsageError, match=r"100000 vertices for a 48-step model needs about 95 GB, and"):
+        cli.check_roadmap_memory(100_000, 48)
+    monkeypatch.setattr(cli, "available_mb", lambda: None)  # unknown: not refused
+    cli.check_roadmap_memory(100_000, 48)
+    monkeypatch.setattr(cli, "available_mb", lambda: 1500.0)
+    model = _model(tmp_path, names=("bowl",))
+    monkeypatch.chdir(tmp_path)
+    r = run_cli(cli.main, "plan.py", ["--model", str(model), "--roadmap-size", "20000"], capsys)
+    assert r.returncode == 2 and "--roadmap-size 20000: a roadmap of 20000 vertices for a 4-step model" in r.stderr
+    assert not (tmp_path / "runs").exists()
