@@ -361,21 +361,37 @@ def _demo_set(args):
     ds = load_demos(demos_dir, time_steps=args.time_steps)
     if ds.task is not None and ds.task.name != args.task:
         raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")
-    if ds.task is None:  # (the model then named no task nor time step, which planning needs)
-        from dataclasses import replace
-
-        from lfd.learning.tasks import TaskSpec
-        try:
-            task = TaskSpec(name=args.task, dt=ds.dt, **({} if args.time_steps is None else
-                                                        {"time_steps": args.time_steps}))
-        except ValueError as e:
-            raise UsageError(f"--demos {demos_dir} has no task.json, and task {args.task!r} at the "
-                             f"demonstrations' dt={ds.dt:g} s is not a task: {e}") from e
-        ds = replace(ds, task=task)
-        print(f"note: {demos_dir} has no task.json: task {args.task!r} is learned at the demonstrations' "
-              f"dt={ds.dt:g} s; a task.json would give its hand-picked tool point and reference landmark "
-              f"(docs/RECORDINGS.md)", flush=True)
+    if ds.task is None:
+        ds = _task_of_its_own(args, ds, demos_dir)
     return ds, demos_dir
+
+
+def _task_of_its_own(args, ds, demos_dir: Path):
+    """``ds`` with a task named ``--task`` at the files' ``dt`` and ``TaskSpec``'s defaults, for a
+    set without a task.json (its model named no task nor time step, which planning needs). The
+    built-in tasks' own settings, and the hand-picked tool point and reference landmark the
+    manual variants fix, come only from a task.json: those are refused without one."""
+    from dataclasses import replace
+
+    from lfd.learning.tasks import TaskSpec
+    if args.task in BUILT_IN_TASKS:
+        raise UsageError(f"--demos {demos_dir} has no task.json; the built-in task {args.task!r} learns with "
+                         f"its own settings from one (python -m sim.demos writes it)")
+    manual = [opt for opt, value, fixed in (("--tool", args.tool, "tip"), ("--env", args.env, "bowl")) if value == fixed]
+    if manual:
+        raise UsageError(f"{', '.join(manual)} manual need(s) the hand-picked tool point and reference landmark "
+                         f"of a task.json, which {demos_dir} does not have (docs/RECORDINGS.md)")
+    try:
+        task = TaskSpec(name=args.task, dt=ds.dt, **({} if args.time_steps is None else
+                                                    {"time_steps": args.time_steps}))
+    except ValueError as e:
+        raise UsageError(f"--demos {demos_dir} has no task.json, and task {args.task!r} at the "
+                         f"demonstrations' dt={ds.dt:g} s is not a task: {e}") from e
+    stride = args.subsample or 1
+    print(f"note: {demos_dir} has no task.json: task {args.task!r} is learned from samples every "
+          f"{ds.dt:g} s{f', one in {stride} kept (a step of {ds.dt * stride:g} s)' if stride > 1 else ''}, with "
+          f"TaskSpec's defaults; a task.json would set them (docs/RECORDINGS.md)", flush=True)
+    return replace(ds, task=task)
 
 
 def _checkpoint(args, out: Path, progress: dict):

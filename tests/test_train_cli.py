@@ -81,6 +81,14 @@ def _bad_task_json(d, good):
     return ["train.py", "--task", "powder", "--demos", str(d / "demos"), "--out", str(d / "out"), *RUN]
 
 
+def _no_task_json(task: str, *extra: str):
+    def setup(d, good):
+        shutil.copytree(good, d / "demos")
+        (d / "demos" / "task.json").unlink()
+        return ["train.py", "--task", task, "--demos", str(d / "demos"), "--out", str(d / "out"), *RUN, *extra]
+    return setup
+
+
 def _task_json_subsample(d, good):
     shutil.copytree(good, d / "demos")
     task = json.loads((d / "demos" / "task.json").read_text())
@@ -219,6 +227,10 @@ CASES = [
     ("subsample-step", _train("--subsample", "101"), "--subsample 101: a time step of 10.1 s, more than a task's 10 s"),
     ("subsample-step-task-json", _task_json_subsample,  # named --subsample, which was not given
      "task.json: not a valid task definition: TaskSpec.subsample 1000: a time step of 100 s learned, more than 10"),
+    ("built-in-task-no-task-json", _no_task_json("powder"),
+     "has no task.json; the built-in task 'powder' learns with its own settings from one"),
+    ("manual-no-task-json", _no_task_json("scoop", "--tool", "manual", "--env", "manual"),
+     "--tool, --env manual need(s) the hand-picked tool point and reference landmark of a task.json"),
     ("subsample-word", _train("--subsample", "half"), "argument --subsample: invalid int value: 'half'"),
     ("floor-zero", _train("--floor-task", "0"),
      "FitConfig.floor_joint, floor_task and floor_attitude must be positive standard deviations, got 0.001, 0.0, 0.01"),
@@ -641,7 +653,7 @@ def test_a_users_own_task_trains_and_plans_without_the_simulator(tmp_path, capsy
     r = run_cli(main, "lfd-train", ["--task", "reach", "--demos", str(tmp_path / "demos"), "--out",
                                     str(tmp_path / "bare"), *RUN, "--subsample", "2", "--quiet"], capsys)
     assert r.returncode == 0, r.stderr
-    assert "has no task.json: task 'reach' is learned at the demonstrations' dt=0.1 s" in r.stdout
+    assert "has no task.json: task 'reach' is learned from samples every 0.1 s, one in 2 kept (a step of 0.2 s)" in r.stdout
     bare = TaskModel.load(tmp_path / "bare", kin=kin)
     assert bare.task is not None and (bare.task.name, bare.task.dt, bare.time_steps) == ("reach", 0.2, 4)
     bare_planner = TaskPlanner(bare, lambda q: False, lambda a, b: False, settings=TaskPlannerSettings(n_vertices=60))
