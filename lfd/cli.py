@@ -19,7 +19,7 @@ import os
 import sys
 from pathlib import Path
 
-from lfd.errors import UserInputError
+from lfd.errors import UserInputError, error_line
 
 __all__ = [
     "EXIT_BROKEN_PIPE",
@@ -120,14 +120,6 @@ def writable_dir(path: str | Path, what: str = "--out") -> Path:
     if not os.access(path, os.W_OK | os.X_OK):
         raise UsageError(f"{what} {path}: folder is not writable")
     return path
-
-
-def error_line(e: BaseException) -> str:
-    """A user error as the one line ``run_main`` prints after ``"<prog>: error: "``."""
-    msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-    if isinstance(e, OSError) and e.filename and str(e.filename) not in msg:
-        msg = f"{e.filename}: {msg}"
-    return msg
 
 
 def run_main(main, argv=None, prog: str | None = None) -> None:

@@ -165,7 +165,7 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_
     what = f"training the {v.name} model ({v.model_key})"
     folder = None if demos is None else set_folder(demos)
     if folder is not None and folder.is_dir() and not (folder / "task.json").is_file():
-        # its model would name no task: no time step to execute at (plan.py --model refuses it)
+        # (lfd-train refuses it too: a built-in task's time step and settings come from its task.json)
         where = folder if folder == demos else f"{demos}'s folder {folder.resolve()}"
         raise TrainingFailed(f"{what}: {where} has no task.json, which gives the model its task and time step; "
                              f"add one (lfd.learning.tasks.TaskSpec) to the demonstrations", 2)

@@ -400,6 +400,7 @@ class _ClosedLoop:
         else:  # no plan: the robot stays there if the old plan is blocked ahead, else goes on once told
             self.busy_until = done_at
             self.release_at = None if blocked else done_at
+            self._release_ended_hold()  # (no time charged: at once)
 
     def _stop_before_blocked(self, pos, tic: float) -> tuple[tuple[int, float], bool]:
         """``(pos, blocked)``: ``pos``, or where the robot must stop instead because the plan

@@ -69,7 +69,8 @@ def check_roadmap_memory(n: int | None, time_steps: int, processes: int = 1) -> 
     have = available_mb()
     if have is not None and need > have:
         each = f" ({need / processes / 1024:.0f} GB in each of {processes} workers)" if processes > 1 else ""
-        raise UsageError(f"--roadmap-size {vertices}: a roadmap of {vertices} vertices for a {time_steps}-step model "
+        what = f"--roadmap-size {n}" if n is not None else f"the default roadmap size ({vertices})"
+        raise UsageError(f"{what}: a roadmap of {vertices} vertices for a {time_steps}-step model "
                          f"needs about {need / 1024:.0f} GB{each}, and this machine has {have / 1024:.0f} GB "
                          f"available; take fewer vertices{' or fewer --workers' if processes > 1 else ''}")
 
@@ -144,7 +145,7 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                          "(the pour's scenes keep it still otherwise; the powder's always move it)")
     ap.add_argument("--video", action="store_true", help="write a GIF of the first scenario of each variant")
     ap.add_argument("--out", type=path_arg, default=None, metavar="DIR",
-                    help="output folder (default: ./runs/<task>/plans, or ./runs/<task>/eval with --evaluate)")
+                    help="output folder (default: ./runs/<task>/plans/<model folder's name>, or ./runs/<task>/eval with --evaluate)")
     return ap
 
 
@@ -246,7 +247,8 @@ def main(argv=None, prog: str = PROG) -> int:
         raise UsageError(f"--gui: {no_display()}; plan without it (--plot draws the plan)")
     checked, task_name = load_checked_model(args.model, args.task)  # landmarks, robot, task: before any simulation
     check_roadmap_memory(args.roadmap_size, checked.time_steps)
-    out = writable_dir(args.out or Path("runs") / task_name / "plans")  # (not into the model's folder: it may be shared)
+    # (not into the model's folder, which may be shared; one folder per model, so that two do not overwrite)
+    out = writable_dir(args.out or Path("runs") / task_name / "plans" / args.model.resolve().name)
     scenario = draw_scenario(task_name, args.scenario_seed)
     report, res, model = plan_scenario(args.model, scenario, args.roadmap_size, gui=args.gui,
                                        execute=args.execute, latency=args.latency)

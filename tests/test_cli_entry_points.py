@@ -149,7 +149,7 @@ def test_one_plan_executed_exits_1_when_the_execution_fails(tmp_path, monkeypatc
                                                       fraction_in_bowl=0.9 if executed else 0.2, n_replans=0,
                                                       executed_tilt_deg=120.0, planned_tilt_deg=121.0))
     model = SimpleNamespace(task=SimpleNamespace(dt=0.1))
-    monkeypatch.setattr(sim.model_check, "load_checked_model", lambda *a, **kw: (None, "powder"))
+    monkeypatch.setattr(sim.model_check, "load_checked_model", lambda *a, **kw: (SimpleNamespace(time_steps=24), "powder"))
     monkeypatch.setattr(sim.runner, "plan_scenario", lambda *a, **kw: (report, res, model))
     d = tmp_path / "model"
     d.mkdir()

@@ -172,6 +172,8 @@ def test_an_answer_that_is_not_a_bool_or_a_name_is_refused_not_read_as_free(answ
     Q = np.zeros((1, 2))
     if isinstance(answer, str):
         assert Roadmap(2, lambda q: answer, segment_hits_box).hits(Q).tolist() == ["distance"]
+        zero_d = Roadmap(2, lambda q: np.where(True, answer, ""), lambda a, b: np.where(False, answer, ""))
+        assert zero_d.hits(Q).tolist() == ["distance"] and not zero_d.segment_collides(Q[0], Q[0] + 1)
         return
     single = Roadmap(2, lambda q: answer, lambda a, b: answer)
     with pytest.raises(ValueError, match="collision_fn"):
@@ -181,6 +183,11 @@ def test_an_answer_that_is_not_a_bool_or_a_name_is_refused_not_read_as_free(answ
     batch = Roadmap(2, None, segment_hits_box, batch_collision_fn=lambda Q: [answer] * len(Q))
     with pytest.raises(ValueError, match="batch_collision_fn"):
         batch.hits(np.zeros((3, 2)))
+    if isinstance(answer, (float, int)):  # the same as an array: (3,) of 0.5 or of 2
+        array = Roadmap(2, None, segment_hits_box, batch_collision_fn=lambda Q: np.full(len(Q), answer))
+        with pytest.raises(ValueError, match=r"batch_collision_fn must answer with bools \(or 0 and 1\) or names, "
+                                             r"got dtype (float|int)64 \(a distance"):
+            array.hits(np.zeros((3, 2)))
     with pytest.raises(ValueError, match="returned None"):
         Roadmap(2, _forgot_return, segment_hits_box).hits(Q)
     with pytest.raises(ValueError, match="returned None"):
@@ -294,3 +301,9 @@ def test_candidates_an_object_blocked_are_readmitted_when_it_leaves():
     unnamed = Roadmap.build(uniform(np.random.default_rng(3)), 100, lambda q: bool(np.all(np.abs(q) <= 0.3)),
                             lambda a, b: False)
     assert unnamed.n_set_aside == 0
+    # only what may move is kept (the wall never will), and a limit drops the surplus
+    place["box"] = np.array([0.0, 0.0])
+    only_box = Roadmap.build(uniform(np.random.default_rng(3)), 300, hits, lambda a, b: False, movable=["box"])
+    assert 0 < only_box.n_set_aside < aside  # (the wall's candidates are not kept)
+    place["box"] = np.array([5.0, 5.0])
+    assert len(only_box.readmit("box", limit=4)) == 4 and only_box.n_set_aside == 0

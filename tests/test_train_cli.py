@@ -693,7 +693,7 @@ def test_a_roadmap_the_memory_cannot_hold_is_refused_before_the_build(tmp_path, 
     monkeypatch.setattr(cli, "available_mb", lambda: 4000.0)
     cli.check_roadmap_memory(None, 48)  # the pour's default, 2000 vertices: 2.9 GB
     cli.check_roadmap_memory(None, 24, processes=2)  # the powder's, twice: 2.9 GB
-    with pytest.raises(cli.UsageError, match=r"needs about 6 GB \(3 GB in each of 2 workers\), .* 4 GB available; "
+    with pytest.raises(cli.UsageError, match=r"^the default roadmap size \(2000\): .*needs about 6 GB \(3 GB in each of 2 workers\), .* 4 GB available; "
                                              r"take fewer vertices or fewer --workers"):
         cli.check_roadmap_memory(None, 48, processes=2)
     with pytest.raises(cli.UsageError, match=r"100000 vertices for a 48-step model needs about 95 GB, and"):

@@ -166,11 +166,15 @@ class BiasedGrowth:
         if i >= 2:
             self.stats["extra_posture_rounds"] = self.stats.get("extra_posture_rounds", 0) + 1
 
+    def room(self, rm: Roadmap) -> int:
+        """Vertices ``rm`` may still gain before ``max_vertices``."""
+        return self.max_vertices - rm.n
+
     def _start_growth(self, pos: np.ndarray, rm: Roadmap, landmarks: torch.Tensor) -> _Growth | None:
         """The growth the landmarks at ``pos (Z, 3)`` need, or None when the roadmap was grown near
         there already or is full (then the verdict is settled here)."""
         s = self.settings
-        room = self.max_vertices - rm.n
+        room = self.room(rm)
         dist = [np.abs(pos - g).max() for g, _ in self._grown_for]
         nearest = int(np.argmin(dist))
         if dist[nearest] <= s.regrow_distance:

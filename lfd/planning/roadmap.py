@@ -83,11 +83,12 @@ class Roadmap:
     batch_collision_fn : optional ``Q (n, d) -> (n,) bool``; used instead of ``collision_fn`` for
         batches. Both may return names of what is hit instead of booleans (``hits``).
     settings : RoadmapSettings.
+    movable : names of what may move (``set_movable``; None: anything the callables name).
     """
 
     def __init__(self, d: int, collision_fn: Callable, segment_fn: Callable, *,
                  batch_collision_fn: Callable | None = None,
-                 settings: RoadmapSettings = RoadmapSettings()):
+                 settings: RoadmapSettings = RoadmapSettings(), movable=None):
         if int(d) != d or d < 1:
             raise ValueError(f"Expected d a positive integer, got {d!r}")
         self.d = int(d)
@@ -103,13 +104,15 @@ class Roadmap:
         self._pending: list[tuple[int, int]] = []  # edges added since _ends was last extended
         self._aside = np.empty((0, self.d))  # (k, d) candidates that hit a named thing (``readmit``)
         self._aside_what = np.empty(0, dtype=str)  # (k,) what each hit
+        self._movable: tuple[str, ...] | None = None  # names whose candidates are set aside (None: any)
+        self.set_movable(movable)
         self.counters = {"vertex_checks": 0, "segment_checks": 0, "edges_removed": 0, "readmitted": 0}
 
     # ------------------------------------------------------------------ construction
     @classmethod
     def build(cls, sample_fn: Callable, n: int, collision_fn: Callable, segment_fn: Callable, *,
               biased_samples: np.ndarray | None = None, batch_collision_fn: Callable | None = None,
-              settings: RoadmapSettings = RoadmapSettings()) -> Roadmap:
+              settings: RoadmapSettings = RoadmapSettings(), movable=None) -> Roadmap:
         """Sample ``n`` collision-free vertices and connect them.
 
         ``biased_samples: (m, d)`` are candidate configurations (e.g. from ``mixed_samples`` or
@@ -123,7 +126,7 @@ class Roadmap:
         if first.ndim != 2:
             raise ValueError(f"Expected sample_fn(n) to return shape (n, d), got {first.shape}")
         rm = cls(first.shape[1], collision_fn, segment_fn, batch_collision_fn=batch_collision_fn,
-                 settings=settings)
+                 settings=settings, movable=movable)
         chunks, have = [], 0
         if biased_samples is not None:
             B = rm._check_Q(biased_samples, "biased_samples")[:n]
@@ -176,19 +179,28 @@ class Roadmap:
                 return out
             if out.dtype.kind == "O":
                 return np.array([_name(x, "batch_collision_fn") for x in out.tolist()])
-            if out.dtype.kind not in "biu":
-                raise ValueError(f"batch_collision_fn must answer with bools or names, got dtype {out.dtype} "
-                                 "(a distance? compare it with a margin first)")
+            if out.dtype.kind not in "biu" or not np.isin(out, (0, 1)).all():
+                hint = " (a distance? compare it with a margin first)" if out.dtype.kind in "fiu" else ""
+                raise ValueError(f"batch_collision_fn must answer with bools (or 0 and 1) or names, got "
+                                 f"dtype {out.dtype}{hint}")
             return np.where(out.astype(bool), UNNAMED, "")
         return np.array([_name(self.collision_fn(q), "collision_fn") for q in Q])
 
+    def set_movable(self, names) -> None:
+        """The names of what may move (e.g. the sensed landmarks): only candidates that hit one
+        of them are set aside from now on (None: anything named)."""
+        self._movable = None if names is None else tuple(str(n) for n in names)
+
     def free_or_set_aside(self, Q: np.ndarray) -> np.ndarray:
         """``Q: (n, d) -> (n,) bool``, True where the configuration is free. Those that hit a
-        named thing are set aside for ``readmit`` (those hitting an unnamed one are dropped: no
-        move can be told to free them)."""
+        named thing that may move (``set_movable``) are set aside for ``readmit``; the others
+        are dropped (an unnamed obstacle, the robot itself, the joint limits: no move is told to
+        free them)."""
         Q = self._check_Q(Q, "Q")
         what = self.hits(Q)
         named = (what != "") & (what != UNNAMED)
+        if self._movable is not None:
+            named &= np.isin(what, self._movable)
         if named.any():
             self._aside = np.concatenate([self._aside, Q[named]])
             self._aside_what = np.concatenate([self._aside_what, what[named]])
@@ -342,6 +354,8 @@ def _name(hit, what: str) -> str:
         raise ValueError(f"{what} returned None: it must answer True (collides), False (free) or the name "
                          "of what it hits (a missing return?)")
     a = np.asarray(_numpy(hit))
+    if a.size == 1 and a.dtype.kind == "U":  # a 0-d name, np.where(hit, "box", "")
+        return str(a.reshape(()).item())
     if a.size != 1 or a.dtype.kind not in "biu" or a.reshape(()).item() not in (0, 1):
         got = f"of shape {a.shape}" if a.size != 1 else f"{hit!r:.60}"
         raise ValueError(f"{what} must answer one configuration with a bool or a name, got {type(hit).__name__} {got}")

@@ -163,8 +163,7 @@ class TaskPlanner:
                 raise ValueError(f"sample_fn({n - m}) must return {n - m} finite configurations, shape "
                                  f"({n - m}, {self.kin.dof}); got shape {Q.shape}"
                                  + ("" if Q.shape != (n - m, self.kin.dof) else " with NaN or inf"))
-            lo, hi = self.kin.lower.cpu().numpy(), self.kin.upper.cpu().numpy()
-            outside = np.any((Q < lo - LIMIT_TOLERANCE) | (Q > hi + LIMIT_TOLERANCE), axis=1)
+            outside = self._beyond_limits(Q).any(axis=1)
             if outside.any():  # (samples in degrees became vertices no plan should reach)
                 i = int(np.flatnonzero(outside)[0])
                 raise ValueError(f"sample_fn({n - m}) returned {int(outside.sum())} configurations outside the "
@@ -225,12 +224,14 @@ class TaskPlanner:
                 self._vacated.add(name)
             if np.all(np.isfinite(pos)):
                 self._sensed[name] = pos.copy()
+        if self.roadmap is not None:
+            self.roadmap.set_movable(self._sensed)
 
     def grow(self, rounds: int | None = None) -> bool:
         """Add biased vertices for the current landmarks if they moved far from every place the
         roadmap was grown for (``regrow_distance``), and update the reachability verdict. First,
         the candidates set aside for hitting a landmark that has moved since are checked again
-        and the free ones added (``Roadmap.readmit``).
+        and the free ones added (``Roadmap.readmit``; at most half the room ``max_vertices`` leaves).
 
         ``rounds``: how many sampling rounds to run now (None: all). A regrowth takes a few
         rounds (``lfd.planning.growth``); with ``rounds=1`` each call runs one and ``growth_pending``
@@ -242,7 +243,7 @@ class TaskPlanner:
         if self.roadmap is None or self._landmarks is None:
             return False
         before = self.roadmap.n
-        room = self._growth.max_vertices - before
+        room = self._growth.room(self.roadmap) // 2  # (the other half stays for the new place's growth)
         for name in sorted(self._vacated):  # the candidates those landmarks blocked, checked again
             room -= len(self.roadmap.readmit(name, limit=room))
         self._vacated.clear()
@@ -268,7 +269,7 @@ class TaskPlanner:
         n_bias = self._n_bias
         self.roadmap = Roadmap.build(self._free_space_samples, max(2, self.n_vertices - n_bias), self.collision_fn,
                                      self.segment_fn, batch_collision_fn=self.batch_collision_fn,
-                                     settings=s.roadmap)
+                                     settings=s.roadmap, movable=tuple(self._sensed))
         assert self._landmarks is not None  # set by update_landmarks before the build
         self._growth.initial(self.roadmap, self._landmarks, n_bias)
         self.planner = ClosedLoopPlanner(
@@ -295,6 +296,12 @@ class TaskPlanner:
                                  "for every sampled execution), and the task cannot skip them")
         return self.planner.plan(q_current, t_current, q_goal)
 
+    def _beyond_limits(self, Q: np.ndarray) -> np.ndarray:
+        """``Q (..., d) -> (..., d) bool``: the joints beyond the URDF limits by more than
+        ``LIMIT_TOLERANCE`` (what a recording may show)."""
+        lo, hi = self.kin.lower.cpu().numpy(), self.kin.upper.cpu().numpy()
+        return (Q < lo - LIMIT_TOLERANCE) | (Q > hi + LIMIT_TOLERANCE)
+
     def _outside_limits(self, q) -> str:
         """The joints of ``q (d,)`` beyond the URDF limits by more than ``LIMIT_TOLERANCE`` (what
         a recording may show), as ``"name=value"``; ``""`` when none, or when ``q`` is None or not
@@ -305,7 +312,7 @@ class TaskPlanner:
         if q.shape != (self.kin.dof,) or not np.all(np.isfinite(q)):
             return ""
         lo, hi = self.kin.lower.cpu().numpy(), self.kin.upper.cpu().numpy()
-        out = np.flatnonzero((q < lo - LIMIT_TOLERANCE) | (q > hi + LIMIT_TOLERANCE))
+        out = np.flatnonzero(self._beyond_limits(q))
         return ", ".join(f"{self.kin.joint_names[j]}={q[j]:.3f} (limits {lo[j]:.3f}, {hi[j]:.3f})" for j in out)
 
     def _no_plan(self, status: str, message: str) -> PlanResult:

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import torch
 
+from lfd.errors import error_line
+
 __all__ = ["usable_device"]
 
 
@@ -33,6 +35,5 @@ def usable_device(device, what: str = "device") -> torch.device:
         try:
             torch.zeros(1, device=dev) + 1
         except (RuntimeError, AssertionError, ValueError, ImportError) as e:
-            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-            raise ValueError(f"{what} {dev}: this machine's torch cannot use it ({first})") from None
+            raise ValueError(f"{what} {dev}: this machine's torch cannot use it ({error_line(e)})") from None
     return dev
