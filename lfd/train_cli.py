@@ -277,7 +277,7 @@ def cli() -> None:
     run_main(main, prog=PROG)
 
 
-def _fit_config(args, ds, demos_dir: Path):
+def _fit_config(args, ds):
     """The ``FitConfig`` of the command's options, defaults from the demonstrations' task.json;
     ``UsageError`` for a bad combination."""
     from lfd.learning.learn import FitConfig
@@ -351,7 +351,7 @@ def _summary(result, ds, cfg, n_obs: int) -> dict:
 
 def _demo_set(args):
     """The demonstrations ``--demos`` names (made first when it defaults and is empty), loaded
-    and checked against ``--task``: ``(ds, demos_dir)``."""
+    and checked against ``--task``."""
     from lfd.learning.demos import load_demos
 
     demos_dir = args.demos or default_demos(args.task)
@@ -363,7 +363,7 @@ def _demo_set(args):
         raise UsageError(f"--demos {demos_dir}: demonstrations of task {ds.task.name!r}, not {args.task!r}")
     if ds.task is None:
         ds = _task_of_its_own(args, ds, demos_dir)
-    return ds, demos_dir
+    return ds
 
 
 def _task_of_its_own(args, ds, demos_dir: Path):
@@ -434,8 +434,8 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
     from lfd.robot.kinematics import KinematicModel
 
     resumed = _checkpoint(args, out, progress)
-    ds, demos_dir = _demo_set(args)
-    cfg = _fit_config(args, ds, demos_dir)
+    ds = _demo_set(args)
+    cfg = _fit_config(args, ds)
     progress["restarts"] = cfg.restarts
     _reconcile_checkpoint(resumed, out, cfg, ds, guard)
     kin = KinematicModel.from_spec(ds.robot)

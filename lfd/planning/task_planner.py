@@ -163,7 +163,7 @@ class TaskPlanner:
                 raise ValueError(f"sample_fn({n - m}) must return {n - m} finite configurations, shape "
                                  f"({n - m}, {self.kin.dof}); got shape {Q.shape}"
                                  + ("" if Q.shape != (n - m, self.kin.dof) else " with NaN or inf"))
-            outside = self._beyond_limits(Q).any(axis=1)
+            outside = ~self.kin.within_limits(Q, LIMIT_TOLERANCE).cpu().numpy()
             if outside.any():  # (samples in degrees became vertices no plan should reach)
                 i = int(np.flatnonzero(outside)[0])
                 raise ValueError(f"sample_fn({n - m}) returned {int(outside.sum())} configurations outside the "
@@ -296,12 +296,6 @@ class TaskPlanner:
                                  "for every sampled execution), and the task cannot skip them")
         return self.planner.plan(q_current, t_current, q_goal)
 
-    def _beyond_limits(self, Q: np.ndarray) -> np.ndarray:
-        """``Q (..., d) -> (..., d) bool``: the joints beyond the URDF limits by more than
-        ``LIMIT_TOLERANCE`` (what a recording may show)."""
-        lo, hi = self.kin.lower.cpu().numpy(), self.kin.upper.cpu().numpy()
-        return (Q < lo - LIMIT_TOLERANCE) | (Q > hi + LIMIT_TOLERANCE)
-
     def _outside_limits(self, q) -> str:
         """The joints of ``q (d,)`` beyond the URDF limits by more than ``LIMIT_TOLERANCE`` (what
         a recording may show), as ``"name=value"``; ``""`` when none, or when ``q`` is None or not
@@ -312,7 +306,7 @@ class TaskPlanner:
         if q.shape != (self.kin.dof,) or not np.all(np.isfinite(q)):
             return ""
         lo, hi = self.kin.lower.cpu().numpy(), self.kin.upper.cpu().numpy()
-        out = np.flatnonzero(self._beyond_limits(q))
+        out = np.flatnonzero((q < lo - LIMIT_TOLERANCE) | (q > hi + LIMIT_TOLERANCE))
         return ", ".join(f"{self.kin.joint_names[j]}={q[j]:.3f} (limits {lo[j]:.3f}, {hi[j]:.3f})" for j in out)
 
     def _no_plan(self, status: str, message: str) -> PlanResult:
