@@ -76,10 +76,13 @@ def load_checked_model(model_dir: str | Path, task: str | None = None,
     return model, task
 
 
-def check_models_for_task(model_dirs, task: str, what: str = "--models") -> None:
+def check_models_for_task(model_dirs, task: str, what: str = "--models") -> list[int | None]:
     """Check every already trained model among ``model_dirs`` (folders holding ``model.pt`` and
     ``config.json``, as ``sim.evaluate.ensure_model`` counts them) against the ``task`` scenarios;
-    the other folders are left to be trained."""
+    the other folders are left to be trained. Returns each folder's number of time steps, ``None``
+    for a folder still to be trained."""
+    steps: list[int | None] = []
     for d in map(Path, model_dirs):
-        if (d / "model.pt").is_file() and (d / "config.json").is_file():
-            load_checked_model(d, task, what=what)
+        trained = (d / "model.pt").is_file() and (d / "config.json").is_file()
+        steps.append(load_checked_model(d, task, what=what)[0].time_steps if trained else None)
+    return steps

@@ -208,11 +208,13 @@ def main(argv=None, prog: str = PROG) -> int:
         unknown = [v for v in variants if v not in {x.name for x in VARIANTS}]
         if unknown:
             raise UsageError(f"--variants: unknown {unknown}; choose from {[v.name for v in VARIANTS]}")
-        check_models_for_task([model_dir_for(models, v, k) for k in args.demo_seeds for v in VARIANTS
-                               if v.name in variants], args.task)
+        steps = check_models_for_task([model_dir_for(models, v, k) for k in args.demo_seeds for v in VARIANTS
+                                       if v.name in variants], args.task)
         if args.executor == "local":  # (Ray's workers have their own machines' memory)
             from lfd.learning.tasks import task_from_name
-            check_roadmap_memory(args.roadmap_size, task_from_name(args.task).time_steps, args.workers)
+            trained_as = task_from_name(args.task).time_steps  # (what a model still to be trained gets)
+            check_roadmap_memory(args.roadmap_size, max(trained_as if t is None else t for t in steps),
+                                 args.workers)
         out = writable_dir(args.out or Path("runs") / args.task / "eval")
         try:
             from tqdm import tqdm as progress

@@ -706,3 +706,18 @@ def test_a_roadmap_the_memory_cannot_hold_is_refused_before_the_build(tmp_path, 
     r = run_cli(cli.main, "plan.py", ["--model", str(model), "--roadmap-size", "20000"], capsys)
     assert r.returncode == 2 and "--roadmap-size 20000: a roadmap of 20000 vertices for a 4-step model" in r.stderr
     assert not (tmp_path / "runs").exists()
+
+
+def test_the_evaluations_memory_check_counts_the_trained_models_own_time_steps(tmp_path, monkeypatch, capsys):
+    """--evaluate estimated every roadmap at the built-in task's number of steps (the powder's 24),
+    whatever the trained models had learned; a trained model's own T counts, and a variant still
+    to be trained counts at the task's T."""
+    import sim.plan_cli as cli
+    monkeypatch.setattr(cli, "available_mb", lambda: 1500.0)
+    argv = _evaluate_models("powder")(tmp_path, tmp_path)[1:] + ["--roadmap-size", "20000"]
+    r = run_cli(cli.main, "plan.py", argv, capsys)
+    assert r.returncode == 2 and "a roadmap of 20000 vertices for a 4-step model" in r.stderr
+    r = run_cli(cli.main, "plan.py", argv[:argv.index("--variants") + 1] + ["learned+learned", "arbitrary+manual"]
+                + argv[argv.index("--variants") + 2:], capsys)
+    assert r.returncode == 2 and "a roadmap of 20000 vertices for a 24-step model" in r.stderr
+    assert not (tmp_path / "eval").exists()
