@@ -245,8 +245,9 @@ def main(argv=None, prog: str = PROG) -> int:
     from sim.runner import plan_scenario
     from sim.scenarios import draw_scenario
     from sim.world import no_display
-    if args.gui and no_display():  # (a RuntimeError traceback after the model was loaded)
-        raise UsageError(f"--gui: {no_display()}; plan without it (--plot draws the plan)")
+    why = no_display() if args.gui else ""  # (a RuntimeError traceback after the model was loaded)
+    if why:
+        raise UsageError(f"--gui: {why}; plan without it (--plot draws the plan)")
     checked, task_name = load_checked_model(args.model, args.task)  # landmarks, robot, task: before any simulation
     check_roadmap_memory(args.roadmap_size, checked.time_steps)
     # (not into the model's folder, which may be shared; one folder per model, so that two do not overwrite)

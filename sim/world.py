@@ -16,6 +16,9 @@ Command line: ``python -m sim.world [--task powder|pour] [--gui] [--snapshot FIL
 from __future__ import annotations
 
 import os
+import re
+import socket
+import struct
 import sys
 import tempfile
 from pathlib import Path
@@ -60,10 +63,58 @@ def patched_urdf(spec: RobotSpec, task: str, folder: Path) -> Path:
     return out
 
 
-def no_display() -> str:
-    """Why the PyBullet GUI cannot open here (Linux without ``DISPLAY``), or ``""``."""
-    if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+X_ANSWER_S = 5.0  # s: an X server answers its connection set-up in milliseconds, over ssh in well under this
+_DISPLAY = re.compile(r"(?:(?P<proto>[A-Za-z]+)/)?(?P<host>[^:/]*):(?P<n>\d+)(?:\.\d+)?")
+
+
+def no_display(timeout: float | None = None) -> str:
+    """Why the PyBullet GUI cannot open here, or ``""``: on Linux, ``DISPLAY`` unset, or an X
+    server there that refuses the connection or does not answer its set-up within ``timeout``
+    seconds (default ``X_ANSWER_S``). PyBullet itself exits the process on the first ("cannot
+    connect to X server", status 1) and waits for ever on the second. A ``DISPLAY`` of another
+    form is left to PyBullet."""
+    timeout = X_ANSWER_S if timeout is None else timeout
+    if not sys.platform.startswith("linux"):
+        return ""
+    display = os.environ.get("DISPLAY")
+    if not display:
         return "the PyBullet GUI needs a display (DISPLAY is not set)"
+    m = _DISPLAY.fullmatch(display)
+    if m is None:
+        return ""
+    n, host = int(m["n"]), m["host"]
+    if m["proto"] not in (None, "tcp", "inet", "unix", "local") or n > 59535:
+        return ""
+    if m["proto"] in ("unix", "local") or (m["proto"] is None and host in ("", "unix")):
+        family = socket.AF_UNIX
+        where = [f"\0/tmp/.X11-unix/X{n}", f"/tmp/.X11-unix/X{n}"]  # the abstract socket, then the file
+    else:
+        family, where = socket.AF_INET, [(host, 6000 + n)]
+    why = ""
+    for address in where:  # the first that takes the connection decides, as in Xlib
+        why = _x_answers(family, address, timeout)
+        if not why.startswith("cannot be reached"):
+            break
+    return why and f"the X server of DISPLAY={display} {why}"
+
+
+def _x_answers(family: int, address, timeout: float) -> str:
+    """Send the X11 connection set-up (no authorization) and wait for the first byte of any answer
+    (Failed, Success or Authenticate: the server is there); ``""`` or what went wrong."""
+    with socket.socket(family, socket.SOCK_STREAM) as sock:
+        sock.settimeout(timeout)
+        try:
+            sock.connect(address)
+        except OSError as e:
+            return f"cannot be reached ({e.strerror or e})"
+        try:
+            sock.sendall(b"l\0" + struct.pack("<HHHH", 11, 0, 0, 0) + b"\0\0")
+            if not sock.recv(1):
+                return "closed the connection without an answer"
+        except TimeoutError:
+            return f"does not answer (nothing in {timeout:g} s)"
+        except OSError as e:
+            return f"broke the connection ({e.strerror or e})"
     return ""
 
 
@@ -92,8 +143,9 @@ class World:
         particle_radius = r_def if particle_radius is None else float(particle_radius)
         self._close_callbacks = []
         self.client = None
-        if gui and no_display():
-            raise RuntimeError(no_display())
+        why = no_display() if gui else ""
+        if why:
+            raise RuntimeError(why)
         self.client = p.connect(p.GUI if gui else p.DIRECT)
         if self.client < 0:
             self.client = None
@@ -353,11 +405,14 @@ def main(argv=None) -> int:
         raise UsageError(f"--steps must be >= 0, got {args.steps}")
     if args.snapshot:
         png_file(args.snapshot, "--snapshot")
+    why = no_display() if args.gui else ""
+    if why:
+        raise UsageError(f"--gui: {why}; use --snapshot")
     try:
         scenario = {n: L.DEFAULT_XY[n] for n in ("paper_towels", "lamp_shade", "vase", "books")} if args.obstacles else None
         world = World(args.task, gui=args.gui, scenario=scenario)
     except (ValueError, FileNotFoundError, RuntimeError) as e:
-        raise UsageError(str(e) + ("; use --snapshot" if args.gui and no_display() else "")) from e
+        raise UsageError(str(e)) from e
     with world:
         world.step(args.steps)
         if args.snapshot:

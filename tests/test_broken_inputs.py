@@ -10,8 +10,11 @@ from __future__ import annotations
 import json
 import math
 import os
+import socket
 import subprocess
 import sys
+import threading
+import time
 import zipfile
 from dataclasses import replace
 from pathlib import Path
@@ -349,6 +352,79 @@ def test_plan_cli_gui_without_a_display_is_one_line(capsys, monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.setattr(sys, "platform", "linux")
     _one_line_exit_2(_plan(capsys, "--model", "m", "--gui"), "--gui: the PyBullet GUI needs a display (DISPLAY is not set)")
+
+
+class _FakeX:
+    """A listener where an X server would be: ``answer`` bytes sent back after the client's
+    connection set-up (``b""``: it accepts and never answers, like a hung server)."""
+
+    def __init__(self, family, address, answer: bytes):
+        self.sock = socket.socket(family, socket.SOCK_STREAM)
+        self.sock.bind(address)
+        self.sock.listen(4)
+        self.answer, self.received, self.conns = answer, [], []
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def _serve(self):
+        while True:
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:  # closed
+                return
+            self.conns.append(conn)
+            self.received.append(conn.recv(12))
+            if self.answer:
+                conn.sendall(self.answer)
+
+    def close(self):
+        for c in self.conns:
+            c.close()
+        self.sock.shutdown(socket.SHUT_RDWR)  # (wakes the accept; a bare close leaves it listening)
+        self.sock.close()
+
+
+def _fake_x(family, answer: bytes):
+    """A ``_FakeX`` on a free display number; ``(server, DISPLAY)``."""
+    for n in range(4242, 4342):
+        address = ("127.0.0.1", 6000 + n) if family == socket.AF_INET else f"\0/tmp/.X11-unix/X{n}"
+        try:
+            server = _FakeX(family, address, answer)
+        except OSError:
+            continue
+        return server, (f"127.0.0.1:{n}.0" if family == socket.AF_INET else f":{n}")
+    pytest.skip("no free display number")
+
+
+@pytest.mark.parametrize("family", [socket.AF_INET, socket.AF_UNIX])
+def test_gui_with_an_x_server_that_does_not_answer_is_refused_in_seconds(family, capsys, monkeypatch):
+    """``plan.py --gui`` with a DISPLAY whose X server does not answer waited for ever inside
+    PyBullet's connect; one that refuses the connection made PyBullet exit the process (status 1,
+    its own 'cannot connect to X server'). Both are one line and status 2 now, before the model
+    loads; a server that answers the X11 set-up at all (here: 'Failed', as to a client without
+    its cookie) is left to PyBullet."""
+    import sim.world
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.setattr(sim.world, "X_ANSWER_S", 0.3)
+    mute, display = _fake_x(family, b"")
+    try:
+        monkeypatch.setenv("DISPLAY", display)
+        tic = time.perf_counter()
+        _one_line_exit_2(_plan(capsys, "--model", "m", "--gui"),
+                         f"--gui: the X server of DISPLAY={display} does not answer (nothing in 0.3 s)")
+        assert time.perf_counter() - tic < 5.0
+        assert mute.received and mute.received[0][:1] == b"l" and len(mute.received[0]) == 12  # the X11 set-up
+    finally:
+        mute.close()
+    assert "cannot be reached" in sim.world.no_display()  # nobody listens there now
+    server, display = _fake_x(family, b"\0")
+    try:
+        monkeypatch.setenv("DISPLAY", display)
+        assert sim.world.no_display() == ""
+    finally:
+        server.close()
+    for other in ("weird", "host/x:0", "tcp/h:99999999"):  # forms the probe does not know: left to PyBullet
+        monkeypatch.setenv("DISPLAY", other)
+        assert sim.world.no_display() == ""
 
 
 def test_evaluation_whose_training_fails_exits_2_without_a_traceback(tmp_path, capsys):
