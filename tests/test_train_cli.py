@@ -700,6 +700,13 @@ def test_a_roadmap_the_memory_cannot_hold_is_refused_before_the_build(tmp_path, 
         cli.check_roadmap_memory(100_000, 48)
     monkeypatch.setattr(cli, "available_mb", lambda: None)  # unknown: not refused
     cli.check_roadmap_memory(100_000, 48)
+    capsys.readouterr()
+    monkeypatch.setattr(cli, "available_mb", lambda: 4000.0)  # the build fits, its growth to 3 x would not
+    cli.check_roadmap_memory(1200, 48)  # 2.1 GB; 4.4 GB at 3,600 vertices
+    assert capsys.readouterr().err.startswith("note: the roadmap may grow after landmark moves to 3600 vertices, "
+                                              "about 4.4 GB, more than the 3.9 GB available")
+    cli.check_roadmap_memory(500, 48)  # 1.5 GB; 2.4 GB grown: no note
+    assert capsys.readouterr().err == ""
     monkeypatch.setattr(cli, "available_mb", lambda: 1500.0)
     model = _model(tmp_path, names=("bowl",))
     monkeypatch.chdir(tmp_path)

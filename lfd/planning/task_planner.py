@@ -51,7 +51,7 @@ from lfd.planning.growth import BiasedGrowth
 from lfd.planning.planner import ClosedLoopPlanner, PlanResult, time_step
 from lfd.planning.roadmap import Roadmap
 from lfd.planning.stepcost import FK_BATCH, ModelStepCost
-from lfd.planning.task_settings import TaskPlannerSettings, default_vertices
+from lfd.planning.task_settings import GROWTH_CAP, TaskPlannerSettings, default_vertices
 from lfd.robot.se3 import not_rigid
 
 __all__ = ["TaskPlanner", "TaskPlannerSettings"]  # the settings live in lfd.planning.task_settings
@@ -126,7 +126,7 @@ class TaskPlanner:
         self.growth_pending = False
         self._n_bias = int(round(settings.bias_fraction * self.n_vertices))  # the build's biased vertices
         regrow = settings.regrow_vertices
-        self._growth = BiasedGrowth(model, settings, self._gen, settings.max_vertices or 3 * self.n_vertices,
+        self._growth = BiasedGrowth(model, settings, self._gen, settings.max_vertices or GROWTH_CAP * self.n_vertices,
                                     self._n_bias if regrow is None else regrow)
         self.roadmap: Roadmap | None = None
         self.planner: ClosedLoopPlanner | None = None

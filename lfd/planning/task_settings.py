@@ -9,9 +9,10 @@ from lfd.learning.tasks import check_whole, is_real
 from lfd.planning.planner import PlannerSettings
 from lfd.planning.roadmap import RoadmapSettings
 
-__all__ = ["TaskPlannerSettings", "default_vertices"]
+__all__ = ["GROWTH_CAP", "TaskPlannerSettings", "default_vertices"]
 
 DEFAULT_VERTICES, DEFAULT_VERTICES_STEPS = 1000, 24  # roadmap size for a model of this many steps
+GROWTH_CAP = 3  # the roadmap grows after landmark moves to at most this many times its size (by default)
 
 
 def default_vertices(time_steps: int) -> int:
@@ -43,7 +44,7 @@ class TaskPlannerSettings:
     many (None: as many as the build's biased share, ``bias_fraction`` of the roadmap size, so a
     new place gets as many sampled executions as the first, whatever the model's length: a fixed
     400 gave the 48-step pour a third as many and its plans after a bowl move poured beside the
-    bowl; 40% of the roadmap still lost far-edge moves that a build for the new place pours); max_vertices: the roadmap never grows past this (default 3 x the roadmap size), so a long run
+    bowl; 40% of the roadmap still lost far-edge moves that a build for the new place pours); max_vertices: the roadmap never grows past this (default ``GROWTH_CAP`` = 3 x the roadmap size), so a long run
     of landmark moves cannot grow memory without bound; object_radius: a sensed landmark is also an
     obstacle of about this radius (m): when it moves, edges passing near its old or new place are
     checked again; seed: of every random draw. A configuration costs the Mahalanobis term of Eq. 3
