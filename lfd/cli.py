@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import errno
 import os
+import shlex
 import sys
 from pathlib import Path
 
@@ -32,6 +33,7 @@ __all__ = [
     "check_device_available",
     "check_seed",
     "error_line",
+    "resume_command",
     "run_main",
     "writable_dir",
 ]
@@ -120,6 +122,17 @@ def writable_dir(path: str | Path, what: str = "--out") -> Path:
     if not os.access(path, os.W_OK | os.X_OK):
         raise UsageError(f"{what} {path}: folder is not writable")
     return path
+
+
+def resume_command(argv, prog: str, console: str) -> str:
+    """The command line that resumes this run: its arguments (``argv``, else ``sys.argv``) with
+    ``--resume``, after ``python SCRIPT.py`` when ``prog`` is a script run as such, else after the
+    console script's name ``console``."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if "--resume" not in args:
+        args.append("--resume")
+    head = [sys.executable, sys.argv[0]] if prog.endswith(".py") and sys.argv[0].endswith(".py") else [console]
+    return shlex.join([*head, *map(str, args)])
 
 
 def run_main(main, argv=None, prog: str | None = None) -> None:

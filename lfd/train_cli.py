@@ -27,7 +27,6 @@ from __future__ import annotations
 import functools
 import json
 import os
-import shlex
 import shutil
 import sys
 import warnings
@@ -43,6 +42,7 @@ from lfd.cli import (
     check_seed,
     check_task_name,
     path_arg,
+    resume_command,
     run_main,
     writable_dir,
 )
@@ -204,15 +204,6 @@ def ensure_demos(task: str, demos_dir: Path, seed: int) -> None:
     generate(task, demos_dir, n=11, seed=seed)
 
 
-def resume_command(argv, prog: str = PROG) -> str:
-    """The command line that resumes this run (``python train.py ...`` when run as that script)."""
-    args = list(sys.argv[1:] if argv is None else argv)
-    if "--resume" not in args:
-        args.append("--resume")
-    head = [sys.executable, sys.argv[0]] if prog.endswith(".py") and sys.argv[0].endswith(".py") else [PROG]
-    return shlex.join([*head, *map(str, args)])
-
-
 def _first_missing(path: Path) -> Path | None:
     """The outermost folder on the way to ``path`` that does not exist yet (what creating
     ``path`` makes), or None when ``path`` exists."""
@@ -247,7 +238,7 @@ def main(argv=None, prog: str = PROG) -> int:
                 if rec.is_file() and progress["done"] is not None:
                     keep = True  # the checkpoint is what --resume continues
                     print(f"{prog}: interrupted by {e.name}; checkpoint {rec} holds {progress['done']} of "
-                          f"{progress['restarts']} restarts; resume with: {resume_command(argv, prog)}",
+                          f"{progress['restarts']} restarts; resume with: {resume_command(argv, prog, PROG)}",
                           file=sys.stderr, flush=True)
                 else:
                     print(f"{prog}: interrupted by {e.name} before the first restart finished; no checkpoint "

@@ -17,7 +17,7 @@ import sys
 import time
 from pathlib import Path
 
-from lfd.cli import ArgumentParser, UsageError, path_arg, run_main, writable_dir
+from lfd.cli import ArgumentParser, UsageError, path_arg, resume_command, run_main, writable_dir
 from sim import require_pybullet
 from sim.scenarios import MAX_BASE_SEED, MAX_SCENARIO_SEED, check_set_size
 from sim.sweep import EXECUTORS
@@ -211,6 +211,7 @@ def main(argv=None, prog: str = PROG) -> int:
     args = parse(argv, prog=prog)
     require_pybullet()
     if args.evaluate:
+        from lfd.learning.checkpoint import Interrupted, InterruptGuard
         from sim.evaluate import VARIANTS, EvalSettings, TrainingFailed, evaluate, format_table, model_dir_for
         from sim.model_check import check_models_for_task
         models = args.models or Path("runs") / args.task / "models"
@@ -223,8 +224,8 @@ def main(argv=None, prog: str = PROG) -> int:
         if args.executor == "local":  # (Ray's workers have their own machines' memory)
             from lfd.learning.tasks import task_from_name
             trained_as = task_from_name(args.task).time_steps  # (what a model still to be trained gets)
-            check_roadmap_memory(args.roadmap_size, max(trained_as if t is None else t for t in steps),
-                                 args.workers)
+            check_roadmap_memory(args.roadmap_size, max((trained_as if t is None else t for t in steps),
+                                                        default=trained_as), args.workers)
         out = writable_dir(args.out or Path("runs") / args.task / "eval")
         try:
             from tqdm import tqdm as progress
@@ -236,10 +237,15 @@ def main(argv=None, prog: str = PROG) -> int:
                                 executor=args.executor, address=args.address, move_bowl=args.move_bowl)
         tic = time.perf_counter()
         try:
-            payload = evaluate(settings, out, models, args.demos, progress, resume=args.resume)
+            with InterruptGuard():  # SIGTERM as Ctrl-C: the workers are stopped, not left running
+                payload = evaluate(settings, out, models, args.demos, progress, resume=args.resume)
         except TrainingFailed as e:  # the training's own reason is in the message; no traceback of ours
             print(f"{prog}: error: {e}", file=sys.stderr)
             return e.returncode if e.returncode in (2, 130, 143) else 1
+        except Interrupted as e:
+            print(f"{prog}: interrupted by {e.name}; the finished runs are in {out / 'runs.jsonl'}; go on with: "
+                  f"{resume_command(argv, prog, PROG)}", file=sys.stderr)
+            return e.exit_status
         print(format_table(payload["variants"], args.task, settings.latency,
                            cells=payload["spread"] if len(payload["cells"]) > 1 else None))
         print(f"wall time {time.perf_counter() - tic:.0f} s, executor {settings.executor}")

@@ -7,8 +7,10 @@ the kernel, a crashed Ray worker), is run once more (``retries``); if it fails a
 ``on_result`` gets ``result=None`` and ``error`` (one line: the exception's type and message).
 A dead worker of the local pool fails every job of the pool; those are run again one at a time,
 so that only the job that kills a worker on its own is charged with the failure.
-Ctrl-C in the driver stops everything and propagates: what was in flight is lost, what finished
-was handed over already.
+Ctrl-C or SIGTERM in the driver stops everything and propagates: what was in flight is lost, what
+finished was handed over already. The local pool's workers leave SIGINT to the driver, which
+terminates them, and on Linux they end with the driver (``PR_SET_PDEATHSIG``) even when it is
+killed outright, so no worker is left running jobs for nobody.
 
 Executors (``make_executor``):
 
@@ -24,6 +26,11 @@ Executors (``make_executor``):
 from __future__ import annotations
 
 import concurrent.futures as cf
+import ctypes
+import multiprocessing as mp
+import os
+import signal
+import sys
 from collections.abc import Callable, Iterable
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -51,6 +58,43 @@ def job_error_line(e: BaseException) -> str:
     return f"{type(e).__name__}: {text[0] if text else ''}".rstrip(": ")
 
 
+PR_SET_PDEATHSIG = 1  # prctl(2): the signal a process gets when its parent ends
+
+
+def _start_worker(parent: int, initializer: Callable[[], None] | None) -> None:
+    """First thing in each worker of a local pool: SIGINT is left to the driver (a terminal's
+    Ctrl-C reaches the whole process group, and every idle worker printed a KeyboardInterrupt
+    traceback), SIGTERM ends it quietly (a fork inherits the driver's handlers, which raise), and
+    on Linux the worker gets SIGTERM when the driver ends, however it ends; then ``initializer``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if sys.platform.startswith("linux"):
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
+        except (OSError, AttributeError):  # no prctl here: the driver's close() still stops the worker
+            pass
+        if os.getppid() != parent:  # the driver ended before that took effect
+            os._exit(1)
+    if initializer is not None:
+        initializer()
+
+
+class _Tracked:
+    """The default multiprocessing context, remembering the processes it starts (the pool's
+    workers, which ``concurrent.futures`` does not name)."""
+
+    def __init__(self):
+        self._ctx, self.processes = mp.get_context(), []
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._ctx, name)
+
+    def Process(self, *args, **kwargs):  # (the context's own name)
+        proc = self._ctx.Process(*args, **kwargs)
+        self.processes.append(proc)
+        return proc
+
+
 class LocalExecutor:
     """Jobs in ``workers`` forked processes (each started by ``initializer``), or inline when
     ``workers`` is 1 (``fn`` is then looked up afresh by the caller: tests replace it)."""
@@ -62,13 +106,17 @@ class LocalExecutor:
             raise ValueError(f"workers must be at least 1, got {workers}")
         self.workers, self.initializer = int(workers), initializer
         self._pool: cf.ProcessPoolExecutor | None = None
+        self._context: _Tracked | None = None
 
     def share(self, obj: Any) -> Any:
         return obj
 
     def _ensure_pool(self) -> cf.ProcessPoolExecutor:
         if self._pool is None:
-            self._pool = cf.ProcessPoolExecutor(max_workers=self.workers, initializer=self.initializer)
+            self._context = _Tracked()
+            self._pool = cf.ProcessPoolExecutor(max_workers=self.workers, mp_context=self._context,  # type: ignore[call-overload]
+                                                initializer=_start_worker,
+                                                initargs=(os.getpid(), self.initializer))
         return self._pool
 
     def run(self, fn: Callable, jobs: list[Job]):
@@ -91,11 +139,17 @@ class LocalExecutor:
     def _drop_pool(self, cancel: bool = False) -> None:
         if self._pool is not None:
             self._pool.shutdown(wait=not cancel, cancel_futures=True)
-            self._pool = None
+            if cancel and self._context is not None:  # the jobs in flight are dropped: end their workers
+                for proc in self._context.processes:
+                    if proc.is_alive():
+                        proc.terminate()
+                for proc in self._context.processes:
+                    proc.join(timeout=5.0)
+            self._pool, self._context = None, None
 
     def close(self, cancel: bool = False) -> None:
-        """Stop the workers; ``cancel``: drop the queued jobs and do not wait for the ones in
-        flight (Ctrl-C reaches the workers too, and they stop)."""
+        """Stop the workers; ``cancel``: drop the queued jobs and terminate the workers of the
+        ones in flight."""
         self._drop_pool(cancel)
 
 

@@ -62,3 +62,10 @@ def fake_train(calls: list):
         (out / "config.json").write_text("{}")
         return 0
     return train
+
+
+def sleeper(pid_dir: str, seconds: float) -> int:
+    """Write this worker's pid into ``pid_dir``, then sleep ``seconds`` (a job still in flight)."""
+    (Path(pid_dir) / f"{os.getpid()}.pid").write_text("")
+    time.sleep(seconds)
+    return os.getpid()

@@ -178,7 +178,7 @@ def test_the_command_exits_1_when_a_run_crashed_and_0_once_resumed(tmp_path, mod
             raise ValueError("the planner fell over")
         return sweep_fakes.run(task, scenario, variant, *args, **kw)
 
-    monkeypatch.setattr(sim.model_check, "check_models_for_task", lambda *a, **kw: None)
+    monkeypatch.setattr(sim.model_check, "check_models_for_task", lambda *a, **kw: [])
     monkeypatch.setattr(ev, "run_one", crashing)
     argv = ["--evaluate", "--task", TASK, "--scenarios", "3", "--workers", "1", "--latency", "none",
             "--variants", "learned+learned", "--models", str(models), "--out", str(tmp_path / "eval")]
@@ -236,6 +236,88 @@ def test_a_sweep_killed_half_way_resumes_to_the_uninterrupted_results(tmp_path, 
     assert len(rows) == 10
     whole = ev.evaluate(_settings(), tmp_path / "whole", models)
     assert _comparable(resumed) == _comparable(whole)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with contextlib.suppress(OSError):  # a zombie (a child of this process not yet reaped) is not running
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    return True
+
+
+def _pids(folder: Path, n: int, timeout: float = 60.0) -> list[int]:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and len(list(folder.glob("*.pid"))) < n:
+        time.sleep(0.02)
+    return [int(f.stem) for f in folder.glob("*.pid")]
+
+
+def test_a_cancelled_pool_terminates_the_workers_of_jobs_in_flight(tmp_path):
+    """Ctrl-C or SIGTERM in the driver cancels the pool (``run_jobs``' ``close(cancel=True)``):
+    the workers still running a job were left running it (for nobody, 60 s here); now they end."""
+    ex = LocalExecutor(2)
+    jobs = [Job(("quick",), (str(tmp_path), 0.0)), Job(("slow",), (str(tmp_path), 60.0))]
+    it = ex.run(sweep_fakes.sleeper, jobs)
+    job, _, e = next(it)
+    assert job.key == ("quick",) and e is None
+    pids = _pids(tmp_path, 2)
+    assert len(pids) == 2 and all(_alive(p) for p in pids)
+    tic = time.monotonic()
+    ex.close(cancel=True)
+    assert not any(_alive(p) for p in pids) and time.monotonic() - tic < 10.0
+
+
+_DRIVER = """
+import sys, time
+sys.path.insert(0, {tests!r})
+import sweep_fakes
+from sim.sweep import Job, LocalExecutor, run_jobs
+run_jobs(sweep_fakes.sleeper, [Job((i,), ({pids!r}, 60.0)) for i in range(2)], lambda *a: None, LocalExecutor(2))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_workers_end_with_a_driver_killed_outright(tmp_path, sig):
+    """``kill <driver>`` (SIGTERM, which the bare library does not catch) or SIGKILL: the driver
+    ends at once and its two workers went on with their jobs, then waited for ever on a pipe."""
+    proc = subprocess.Popen([sys.executable, "-c", _DRIVER.format(tests=str(TESTS), pids=str(tmp_path))],
+                            cwd=ROOT, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    pids = _pids(tmp_path, 2)
+    assert len(pids) == 2 and all(_alive(p) for p in pids), proc.communicate(timeout=5)
+    os.kill(proc.pid, sig)  # the driver only, not its process group
+    proc.communicate(timeout=30)
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline and any(_alive(p) for p in pids):
+        time.sleep(0.05)
+    left = [p for p in pids if _alive(p)]
+    for p in left:
+        os.kill(p, signal.SIGKILL)
+    assert not left
+
+
+def test_an_interrupted_evaluation_names_the_command_that_goes_on(tmp_path, models, monkeypatch, capsys):
+    """SIGTERM ended ``lfd-plan --evaluate`` without a word (the workers left running); SIGTERM and
+    Ctrl-C now print where the finished runs are and the command that resumes them, status 128 +
+    the signal."""
+    import sim.model_check
+    from lfd.learning.checkpoint import Interrupted
+    from sim import plan_cli
+
+    def interrupted(*a, **kw):
+        raise Interrupted(signal.SIGTERM)
+
+    monkeypatch.setattr(sim.model_check, "check_models_for_task", lambda *a, **kw: [])
+    monkeypatch.setattr(ev, "evaluate", interrupted)
+    argv = ["--evaluate", "--task", TASK, "--scenarios", "3", "--workers", "1", "--latency", "none",
+            "--variants", "learned+learned", "--models", str(models), "--out", str(tmp_path / "eval")]
+    assert plan_cli.main(argv, prog="lfd-plan") == 128 + signal.SIGTERM
+    err = capsys.readouterr().err.strip()
+    assert err == (f"lfd-plan: interrupted by SIGTERM; the finished runs are in {tmp_path / 'eval' / 'runs.jsonl'}; "
+                   f"go on with: lfd-plan {' '.join(argv)} --resume")
 
 
 def test_an_unreachable_ray_address_is_refused_before_any_training(tmp_path, monkeypatch):
