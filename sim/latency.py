@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["LATENCIES", "MAX_LATENCY_S", "charged_s", "parse_latency"]
+__all__ = ["LATENCIES", "MAX_LATENCY_S", "charged_s", "describe_latency", "parse_latency"]
 
 LATENCIES = ("measured", "none")
 MAX_LATENCY_S = 60.0  # a fixed latency longer than any task (the arm would hold that long for each plan)
@@ -34,3 +34,12 @@ def charged_s(mode, wall_s: float) -> float:
     if mode == "none":
         return 0.0
     return float(mode)
+
+
+def describe_latency(mode) -> str:
+    """What the latency mode ``mode`` charges, in words (under the evaluation's table)."""
+    if mode == "measured":
+        return "each plan costs its wall-clock time in simulated time, while the robot moves on"
+    if mode == "none":
+        return "the world waits for the planner: plans cost no simulated time"
+    return f"each plan costs {float(mode):g} s of simulated time, while the robot moves on"

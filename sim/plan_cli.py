@@ -274,6 +274,9 @@ def main(argv=None, prog: str = PROG) -> int:
     print(f"plan: {report['status']}  cost {report['cost']:.1f}  waypoints {report['waypoints']}  "
           f"latency {report['latency_ms']:.0f} ms  ({report['edges_evaluated']} edge costs evaluated, "
           f"roadmap of {report['roadmap_vertices']} vertices built in {report['roadmap_build_s']:.1f} s)")
+    if not res.ok:  # why, and what was not done for want of a plan
+        skipped = [what for what, asked in (("--execute", args.execute), ("--plot", args.plot)) if asked]
+        print(f"no plan: {res.message or res.status}" + (f"; {' and '.join(skipped)} skipped" if skipped else ""))
     if "execution" in report:
         ex = report["execution"]
         print(f"execution: {'success' if ex['success'] else 'failure'} ({ex['reason']}); "
@@ -284,11 +287,13 @@ def main(argv=None, prog: str = PROG) -> int:
     import numpy as np
 
     from lfd.learning.checkpoint import atomic_write_bytes, atomic_write_text
+    from sim.report import strict_json
     stem = out / f"plan_scenario{args.scenario_seed}"
     buf = io.BytesIO()  # (written whole or not at all: a full disk left a truncated .npz)
     np.savez(buf, configurations=res.configurations, time_steps=res.time_steps, dt=model.task.dt, cost=res.cost)
     atomic_write_bytes(stem.with_suffix(".npz"), buf.getvalue())
-    atomic_write_text(stem.with_suffix(".json"), json.dumps(report, indent=2, default=float) + "\n")
+    atomic_write_text(stem.with_suffix(".json"),  # (strict JSON: no plan's cost of inf is null)
+                      json.dumps(strict_json(report), indent=2, default=float, allow_nan=False) + "\n")
     print(f"saved {stem.with_suffix('.npz')} and {stem.with_suffix('.json')}")
     if args.plot and res.ok:
         from lfd.plots import plot_plan_features

@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 
+from sim.latency import describe_latency, parse_latency
+
 __all__ = ["PAPER_LATENCY_MS", "PAPER_SUCCESS", "format_table", "measured", "spread", "stats", "strict_json", "summarize"]
 
 PAPER_LATENCY_MS = {"powder": 182, "pour": 200}  # the paper's planning latency (Tables I, II; 12 cores)
@@ -186,5 +188,5 @@ def format_table(results: dict, task: str, latency: str | None = None, cells: di
     if crashed:
         lines.append(f"{crashed} run(s) crashed twice and count as failures: their errors are in runs.jsonl")
     if latency is not None:
-        lines.append(f"latency mode: {latency} (the simulated time each plan costs while the robot moves on)")
+        lines.append(f"latency mode: {latency} ({describe_latency(parse_latency(latency))})")
     return "\n".join(lines)

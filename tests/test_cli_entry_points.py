@@ -11,6 +11,7 @@ module fixture.
 from __future__ import annotations
 
 import importlib.util
+import math
 import os
 import subprocess
 import sys
@@ -156,6 +157,35 @@ def test_one_plan_executed_exits_1_when_the_execution_fails(tmp_path, monkeypatc
     assert plan_cli.main(["--model", str(d), "--execute", "--out", str(tmp_path / "o")]) == code
     assert ("execution: success" if executed else "execution: failure (spilled)") in capsys.readouterr().out
 
+
+
+def test_no_plan_says_why_and_what_was_skipped_and_writes_strict_json(tmp_path, monkeypatch, capsys):
+    """``lfd-plan --model M --execute --plot`` without a plan printed only ``plan: unreachable  cost
+    inf``: the reason was in the JSON alone, --execute and --plot were skipped without a word, and
+    the JSON held ``Infinity`` (not JSON: JavaScript's parser refuses it, jq reads 1.8e308)."""
+    import json
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    import sim.model_check
+    import sim.runner
+    from sim import plan_cli
+
+    why = "the arm cannot reach the tool-point targets of time step(s) [5, 6]"
+    res = SimpleNamespace(ok=False, status="unreachable", message=why, configurations=np.zeros((0, 7)),
+                          time_steps=np.zeros(0, dtype=int), cost=math.inf)
+    report = dict(status="unreachable", message=why, cost=math.inf, waypoints=0, latency_ms=5.0, edges_evaluated=0,
+                  roadmap_vertices=4, roadmap_build_s=0.1)
+    monkeypatch.setattr(sim.model_check, "load_checked_model", lambda *a, **kw: (SimpleNamespace(time_steps=24), "powder"))
+    monkeypatch.setattr(sim.runner, "plan_scenario", lambda *a, **kw: (report, res, SimpleNamespace(task=SimpleNamespace(dt=0.1))))
+    d = tmp_path / "model"
+    d.mkdir()
+    assert plan_cli.main(["--model", str(d), "--execute", "--plot", "--out", str(tmp_path / "o")]) == 1
+    out = capsys.readouterr().out
+    assert f"no plan: {why}; --execute and --plot skipped" in out
+    text = (tmp_path / "o" / "plan_scenario0.json").read_text()
+    assert "Infinity" not in text and json.loads(text)["cost"] is None
 
 
 def test_a_write_the_storage_refuses_is_one_line_with_status_1(capsys):

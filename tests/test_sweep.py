@@ -109,6 +109,12 @@ def test_grid_cells_spread_and_table(tmp_path, models, fakes, monkeypatch):
     assert payload["variants"]["learned+learned"]["n_scenarios"] == 20
     table = format_table(payload["variants"], TASK, "none", cells=payload["spread"])
     assert f"{s['mean']:.0%} ± {s['sd']:.0%}" in table and "100%" in table  # ours and the paper's
+    # the mode's words under the table (every mode was said to charge plans while the robot moves on)
+    assert table.endswith("latency mode: none (the world waits for the planner: plans cost no simulated time)")
+    assert format_table(payload["variants"], TASK, 0.5).endswith(
+        "latency mode: 0.5 (each plan costs 0.5 s of simulated time, while the robot moves on)")
+    assert format_table(payload["variants"], TASK, "measured").endswith(
+        "latency mode: measured (each plan costs its wall-clock time in simulated time, while the robot moves on)")
     rows = [json.loads(line) for line in (tmp_path / "eval" / "runs.jsonl").read_text().splitlines()]
     assert {(r["demo_seed"], r["base_seed"]) for r in rows} == {(0, 0), (0, 1), (2, 0), (2, 1)}
     paths = {r["task_point_path"] for r in rows}
