@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shlex
 import sys
 from dataclasses import dataclass
@@ -229,7 +230,7 @@ def run_settings_of(settings: EvalSettings, models: Path) -> dict:
     """What makes two logged runs of one (variant, draw, scenario) the same run, besides the
     latency mode and the executor's pace: the task, the roadmap size, the models folder, the bowl
     move when set, and with measured latency the executor and its workers (or cluster address)."""
-    out: dict = {"task": settings.task, "roadmap_size": settings.roadmap_size, "models": str(models)}
+    out: dict = {"task": settings.task, "roadmap_size": settings.roadmap_size, "models": str(Path(models).resolve())}
     if settings.move_bowl:  # (only then: runs logged before the option existed still count)
         out["move_bowl"] = True
     if settings.latency == "measured":
@@ -242,7 +243,16 @@ def _same_settings(logged: dict, wanted: dict) -> bool:
     """Whether a run logged with ``logged`` settings counts for ``wanted`` ones (a load setting
     the row does not record counts as the same)."""
     keys = set(logged) | set(wanted)
-    return all(logged.get(k) == wanted.get(k) for k in keys if not (k in _LOAD_SETTINGS and k not in logged))
+    return all(_same_value(k, logged.get(k), wanted.get(k)) for k in keys
+               if not (k in _LOAD_SETTINGS and k not in logged))
+
+
+def _same_value(key: str, logged, wanted) -> bool:
+    """One setting; the models folder by where it is (``mdir``, ``./mdir`` and its absolute path
+    are one folder; a relative path logged before paths were resolved is read from here)."""
+    if key == "models" and isinstance(logged, str) and isinstance(wanted, str):
+        return os.path.realpath(logged) == os.path.realpath(wanted)
+    return logged == wanted
 
 
 def _read_log(log: Path, latency: str, run_settings: dict) -> tuple[dict, dict, int, int, bool]:
@@ -337,7 +347,8 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     if other:
         print(f"[evaluate] {other} logged run(s) in {log} were made with other settings (latency mode, task, "
               f"roadmap size, models, bowl move, or with measured latency the executor and workers, which "
-              f"set the CPU's load): they are run again with {run_settings}", file=sys.stderr, flush=True)
+              f"set the CPU's load): they are not counted, and those of this sweep's scenes are run again with "
+              f"{run_settings}", file=sys.stderr, flush=True)
     if settings.executor == "ray":
         require_ray(settings.address)  # before hours of training, not after
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -372,6 +372,26 @@ def test_runs_of_another_roadmap_size_or_models_folder_are_run_again(tmp_path, m
         assert again.calls == _all_pairs(), change
 
 
+def test_the_same_models_folder_named_otherwise_counts_on_resume(tmp_path, models, monkeypatch, capsys):
+    """``--models mdir``, then ``--resume`` with ``$PWD/mdir`` (or from another folder) ran every
+    logged run again: the folder is compared by where it is, also with a relative path logged
+    before paths were resolved."""
+    out = tmp_path / "eval"
+    monkeypatch.setattr(ev, "run_one", FakeRunOne())
+    monkeypatch.chdir(models.parent)
+    ev.evaluate(_settings(), out, Path(models.name))
+    rows = [json.loads(x) for x in (out / "runs.jsonl").read_text().splitlines()]
+    assert {r["settings"]["models"] for r in rows} == {str(models.resolve())}
+    for r in rows:  # as a log written before the folder was resolved
+        r["settings"]["models"] = models.name
+    (out / "runs.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    for named in (models.resolve(), Path(".") / models.name):
+        again = FakeRunOne()
+        monkeypatch.setattr(ev, "run_one", again)
+        ev.evaluate(_settings(), out, named, resume=True)
+        assert again.calls == [] and "other settings" not in capsys.readouterr().err, named
+
+
 @pytest.mark.parametrize("edit,fragment", [
     (lambda r: r.update(scenario=[r["scenario"]]), "whole-number scenario"),  # was: unhashable type
     (lambda r: r.pop("initial_ms"), "missing or malformed initial_ms"),  # was: KeyError in the table
