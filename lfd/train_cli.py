@@ -311,10 +311,13 @@ def _fit_config(args, ds):
 
 
 def _summary(result, ds, cfg, n_obs: int) -> dict:
-    """``summary.json``: the fit's figures, and the errors against a hidden ground truth when the
+    """``summary.json``: the fit's figures, the demonstrations' fingerprint (what an evaluation
+    checks a trained model against), and the errors against a hidden ground truth when the
     demonstrations carry one (evaluation only: it never reaches the fit)."""
+    from lfd.learning.checkpoint import demos_fingerprint
     m = result.model
     summary = {"learning_time_s": result.timings["total_s"], "n_demos": len(ds.demos),
+               "demos_fingerprint": demos_fingerprint(ds),
                "n_observations": n_obs, "subsample": cfg.subsample, "dt": float(m.task.dt) if m.task else None,
                "features": cfg.features, "time_steps": cfg.time_steps, "restarts": cfg.restarts,
                "covariance": cfg.covariance, "max_dwell": cfg.max_dwell, "seed": cfg.seed, "final_loss": result.final_loss,

@@ -34,7 +34,7 @@ import numpy as np
 
 from lfd.cli import USER_ERRORS, UsageError, error_line
 from lfd.learning.checkpoint import read_json
-from lfd.learning.demos import set_folder
+from lfd.learning.demos import load_demos, set_folder
 from lfd.train_cli import default_demos, ensure_demos
 from lfd.train_cli import main as train_main
 from sim.attitude import demo_tilt
@@ -45,7 +45,7 @@ from sim.runner import EXEC_PACE, init_worker, model_files, run_one, run_one_shi
 from sim.scenarios import MAX_BASE_SEED, check_set_size, draw_scenarios, with_bowl_move
 from sim.sweep import EXECUTORS, Job, make_executor, require_ray, run_jobs
 
-__all__ = ["VARIANTS", "EvalSettings", "TrainingFailed", "Variant", "evaluate", "format_table", "run_one"]
+__all__ = ["VARIANTS", "EvalSettings", "TrainingFailed", "Variant", "check_models_folder", "evaluate", "format_table", "run_one"]
 
 class TrainingFailed(RuntimeError):
     """The training command could not make a variant's model (the message gives its reason);
@@ -147,6 +147,15 @@ def model_dir_for(models: Path, v: Variant, demo_seed: int = 0) -> Path:
     return models_for(models, demo_seed) / v.model_key
 
 
+def check_models_folder(models: Path) -> None:
+    """``UsageError`` when ``models`` is one model's own folder, not the folder of the variants'
+    models (a new model was trained inside it, without a word)."""
+    if (Path(models) / "model.pt").is_file() or (Path(models) / "config.json").is_file():
+        raise UsageError(f"--models {models}: a model's own folder (it holds model.pt or config.json); --models takes "
+                         f"the folder of the variants' models ({', '.join(sorted({v.model_key for v in VARIANTS}))}), "
+                         f"--model plans with one model")
+
+
 def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_seed: int = 0,
                  demo_seed: int = 0) -> Path:
     """Train the variant's model of demonstration draw ``demo_seed`` with ``lfd.train_cli.main``
@@ -158,6 +167,8 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_
     base seeds compare the same models. Draw k > 0 is generated here (seed k) when missing."""
     out = model_dir_for(models, v, demo_seed)
     if (out / "model.pt").is_file() and (out / "config.json").is_file():
+        if demos is not None and not demo_seed:
+            _check_trained_on(out, demos)
         return out
     demos = demos_for(task, demos, demo_seed)
     if demo_seed:
@@ -181,6 +192,22 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_
     if code:
         raise TrainingFailed(f"{what} stopped with exit status {code}", code)
     return out
+
+
+def _check_trained_on(model_dir: Path, demos: Path) -> None:
+    """``UsageError`` when the model in ``model_dir`` was trained on other demonstrations than
+    ``demos`` (its ``summary.json``'s fingerprint; a model trained before it was recorded is taken
+    as it is): it was evaluated as is, and its tilt measured against demonstrations it never saw."""
+    from lfd.learning.checkpoint import demos_fingerprint
+    summary = _read_summary(model_dir / "summary.json")
+    recorded, steps = summary.get("demos_fingerprint"), summary.get("time_steps")
+    if not isinstance(recorded, str):
+        return
+    ds = load_demos(demos, time_steps=steps if isinstance(steps, int) and steps >= 2 else None)  # (as it was trained)
+    if recorded != demos_fingerprint(ds):
+        raise UsageError(f"--models: {model_dir} was trained on other demonstrations than --demos {demos}; give "
+                         f"the demonstrations it was trained on, another --models folder, or delete that model "
+                         f"to train it on these")
 
 
 def save_path(out_dir: Path, row: dict, path) -> str:
@@ -336,6 +363,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
     ``out_dir/runs.jsonl`` (without it, a folder that holds logged runs is refused: its runs
     would be mixed with this sweep's). Logged runs made with other settings (``run_settings_of``)
     are run again, not counted, and said so on stderr."""
+    check_models_folder(models)
     by_name = {v.name: v for v in VARIANTS}
     variants = [by_name[n] for n in settings.variants]
     log = out_dir / "runs.jsonl"

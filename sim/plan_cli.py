@@ -212,13 +212,22 @@ def main(argv=None, prog: str = PROG) -> int:
     require_pybullet()
     if args.evaluate:
         from lfd.learning.checkpoint import Interrupted, InterruptGuard
-        from sim.evaluate import VARIANTS, EvalSettings, TrainingFailed, evaluate, format_table, model_dir_for
+        from sim.evaluate import (
+            VARIANTS,
+            EvalSettings,
+            TrainingFailed,
+            check_models_folder,
+            evaluate,
+            format_table,
+            model_dir_for,
+        )
         from sim.model_check import check_models_for_task
         models = args.models or Path("runs") / args.task / "models"
         variants = tuple(args.variants) if args.variants else tuple(v.name for v in VARIANTS)
         unknown = [v for v in variants if v not in {x.name for x in VARIANTS}]
         if unknown:
             raise UsageError(f"--variants: unknown {unknown}; choose from {[v.name for v in VARIANTS]}")
+        check_models_folder(models)
         steps = check_models_for_task([model_dir_for(models, v, k) for k in args.demo_seeds for v in VARIANTS
                                        if v.name in variants], args.task)
         if args.executor == "local":  # (Ray's workers have their own machines' memory)

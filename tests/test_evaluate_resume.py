@@ -354,6 +354,15 @@ def test_missing_model_is_trained_in_this_process(tmp_path, monkeypatch, capsys)
     assert config["options"]["tool"] == "gripper" and config["options"]["env"] == "bowl"
     assert seen[0][seen[0].index("--seed") + 1] == "0"
     assert ev.ensure_model(TASK, tmp_path / "models", demos, v) == out and len(seen) == 1  # trained once
+    # other demonstrations for a trained model: it was evaluated as it was, without a word
+    other = synthetic_demo_dir(tmp_path / "demos2", 3, 4, 2, (3, 4))
+    with pytest.raises(UsageError, match=r"gripper-bowl was trained on other demonstrations than --demos .*demos2"):
+        ev.ensure_model(TASK, tmp_path / "models", other, v)
+    assert len(seen) == 1
+    # --models naming one model's folder: a new model was trained inside it
+    with pytest.raises(UsageError, match=r"a model's own folder \(it holds model.pt or config.json\)"):
+        ev.evaluate(_settings(), tmp_path / "eval", out, demos)
+    assert not (out / "learn-learn").exists()
 
 
 def test_runs_of_another_roadmap_size_or_models_folder_are_run_again(tmp_path, models, monkeypatch):
