@@ -131,7 +131,8 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                             "(default: the one of --seed)")
     ap.add_argument("--demo-seeds", type=_seed_list, default=(0,), metavar="K,K,...",
                     help="demonstration draws to train and evaluate: 0 is --demos (or ./runs/demos/<task>), "
-                         "k > 0 a set the simulator draws with seed k (default: 0)")
+                         "k > 0 a set the simulator draws with seed k, so draws other than 0 are not taken "
+                         "with --demos (default: 0)")
     ap.add_argument("--workers", type=int, default=2, metavar="K",
                     help="parallel processes (with --executor ray and no --address: the local Ray's CPUs)")
     ap.add_argument("--executor", choices=EXECUTORS, default="local",
