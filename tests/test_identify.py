@@ -103,3 +103,36 @@ def test_one_demonstration_is_refused_for_a_learned_environment_landmark(kin, tm
                                     str(tmp_path / "m"), "--restarts", "1", "--time-steps", "6"], capsys)
     assert r.returncode == 2 and "needs at least 2 demonstrations" in r.stderr and r.stderr.count("\n") == 1
     assert not (tmp_path / "m").exists()
+
+
+def test_fewer_placements_than_weights_and_a_tool_point_on_the_bound_are_said(kin):
+    """2 demonstrations of the 5 powder landmarks learned weights 2.19, -1.29, 1.31, 3.47, -4.67 and
+    a tool point on the 0.5 m bound, with no warning: the landmarks standing still, one more
+    demonstration fixes at most 3 of the 4 free weights, and the bound, not the data, placed the
+    tool point. Each is now said; neither is for 3 demonstrations and a tool point inside the bound,
+    nor the count for landmarks that move while demonstrated (every sample is a placement)."""
+    from dataclasses import replace
+
+    from lfd.learning.identify import identifiability_notes
+    rng = np.random.default_rng(3)
+    R = Rotation.from_rotvec(rng.normal(0, 0.5, (50, 3))).as_matrix()  # (N, 3, 3) a gripper that turns
+
+    def with_five(ds, moving=False):
+        demos = []
+        for d in ds.demos:
+            lm = np.concatenate([d.landmarks, np.tile(np.eye(4), (3, 1, 1))])  # (5, 4, 4)
+            lm[2:, :3, 3] = rng.uniform(-0.5, 0.5, (3, 3))
+            if moving:  # (S, 5, 4, 4): the added three drift by 5 cm over the demonstration
+                lm = np.repeat(lm[None], len(d.q), axis=0)
+                lm[:, 2:, 0, 3] += np.linspace(0, 0.05, len(d.q))[:, None]
+            demos.append(replace(d, landmarks=lm))
+        return replace(ds, demos=tuple(demos), landmark_names=("bowl", "cup", "a", "b", "c"))
+
+    two, three = with_five(_posed(kin, _varied, M=2)), with_five(_posed(kin, _varied, M=3))
+    notes = identifiability_notes(two, R, CFG, np.array([0.0, 0.3, 0.4]))  # |tool| = 0.5 m
+    assert any(n.startswith("2 demonstrations for 5 landmarks") and "at most 3 of the 4 free landmark weights" in n
+               and "give at least 3 demonstrations" in n for n in notes), notes
+    assert any(n.startswith("the learned tool point lies on the tool radius bound (0.5 m") for n in notes), notes
+    assert identifiability_notes(three, R, CFG, TOOL) == []
+    assert identifiability_notes(with_five(_posed(kin, _varied, M=2), moving=True), R, CFG, TOOL) == []
+    assert identifiability_notes(two, R, replace(CFG, env="bowl"), TOOL) == []  # no weights learned

@@ -14,11 +14,19 @@
   within the tool's size (``lfd.learning.em``), so an unobservable axis cannot run off to metres.
 * **Landmarks that never move relative to each other.** Two landmarks whose relative pose is
   the same in every demonstration (and sample) cannot be told apart: their weights trade freely.
+* **Fewer placements than weights.** With landmarks that stand still in each demonstration, the
+  demonstrations beyond the first fix at most 3 coordinates each of the ``Z - 1`` free weights
+  (the task's point must come out in one place of the virtual frame): 2 demonstrations of the 5
+  powder landmarks learned weights 2.19, -1.29, 1.31, 3.47, -4.67 and a tool point on the bound.
+* **A tool point on the bound.** The learned tool point ends on ``FitConfig.tool_radius``: the
+  bound, not the data, placed it.
 
 ``identifiability_notes`` gives the warnings the fit reports (``FitResult.warnings``).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -27,6 +35,7 @@ from lfd.learning.fitconfig import FitError
 __all__ = ["MIN_TURN", "check_learnable", "identifiability_notes", "rigidly_attached", "unobservable_axes"]
 
 MIN_TURN = 0.05  # rad (~3 deg): the least rms turn of a unit lever for a tool-point axis to count as seen
+ON_BOUND = 0.99  # a learned tool point this share of FitConfig.tool_radius away lies on the bound
 RIGID_SPREAD = (0.005, np.deg2rad(0.5))  # m, rad: a relative pose that varies less is "the same"
 
 
@@ -53,6 +62,16 @@ def unobservable_axes(R: np.ndarray, min_turn: float = MIN_TURN) -> np.ndarray:
     return axes * signs[:, None]
 
 
+def _landmarks_still(demoset) -> bool:
+    """Whether every landmark stands still (``RIGID_SPREAD``'s distance) within each demonstration."""
+    Z = len(demoset.landmark_names)
+    for d in demoset.demos:
+        pos = np.asarray(d.landmarks).reshape(-1, Z, 4, 4)[:, :, :3, 3]  # (S, Z, 3)
+        if np.linalg.norm(pos - pos[:1], axis=-1).max() >= RIGID_SPREAD[0]:
+            return False
+    return True
+
+
 def rigidly_attached(demoset) -> list[tuple[str, str]]:
     """Landmark pairs whose relative pose is the same throughout the set (``RIGID_SPREAD``)."""
     poses = np.concatenate([np.asarray(d.landmarks).reshape(-1, len(demoset.landmark_names), 4, 4)
@@ -69,14 +88,18 @@ def rigidly_attached(demoset) -> list[tuple[str, str]]:
     return out
 
 
-def identifiability_notes(demoset, R_virt_ee: np.ndarray, cfg) -> list[str]:
+def identifiability_notes(demoset, R_virt_ee: np.ndarray, cfg, tool=None) -> list[str]:
     """Warnings about what the set cannot determine. ``R_virt_ee (N, 3, 3)``: the end link's
     orientation in the learned virtual landmark's frame at every observation (``A R_world_ee``,
     ``A`` the linear part of ``K_virt^-1``): a tool point component is placed when that turns,
-    whether the gripper or the landmarks turned."""
+    whether the gripper or the landmarks turned; ``tool (3,)``: the learned tool point."""
     notes = []
     if cfg.tool == "learn":
         axes = unobservable_axes(np.asarray(R_virt_ee))
+        if not len(axes) and tool is not None and np.linalg.norm(tool) >= ON_BOUND * cfg.tool_radius:
+            notes.append(f"the learned tool point lies on the tool radius bound ({cfg.tool_radius:g} m, "
+                         f"--tool-radius): the bound placed it, not the demonstrations (too few, or too alike; "
+                         f"or a tool longer than the bound)")
         if len(axes):
             dirs = ", ".join("(" + ", ".join(f"{round(x, 2) + 0.0:+.2f}" for x in a) + ")" for a in axes)
             what = ("the gripper's orientation hardly changes: the tool point cannot be placed in any direction"
@@ -86,6 +109,12 @@ def identifiability_notes(demoset, R_virt_ee: np.ndarray, cfg) -> list[str]:
                          f"(FitConfig.tool_radius, --tool-radius), anywhere up to it along "
                          f"{'that axis' if len(axes) == 1 else 'those axes'}: turn the tool while demonstrating")
     if cfg.env == "learn":
+        Z, M = len(demoset.landmark_names), len(demoset.demos)
+        if Z > 1 and 3 * (M - 1) < Z - 1 and _landmarks_still(demoset):
+            notes.append(f"{M} demonstrations for {Z} landmarks: with the landmarks standing still, the demonstrations "
+                         f"beyond the first fix at most {3 * (M - 1)} of the {Z - 1} free landmark weights, so the "
+                         f"data do not determine the environment landmark; give at least "
+                         f"{1 + math.ceil((Z - 1) / 3)} demonstrations, or fix the landmark (--env manual)")
         for a, b in rigidly_attached(demoset):
             notes.append(f"landmarks {a!r} and {b!r} keep the same relative pose in every demonstration: their "
                          f"weights cannot be told apart (the environment landmark may mix them arbitrarily)")

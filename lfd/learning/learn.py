@@ -439,7 +439,7 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
             0, data.lm_demo, det_rows, reduce="amin").cpu().numpy()  # (M,) the least per demonstration
         lo, hi = float(det_rows.min()), float(det_rows.max())
         R_virt_ee = (A[data.lm_row] @ data.T_world_ee[:, :3, :3]).cpu().numpy()  # (N, 3, 3)
-    for text in identifiability_notes(demoset, R_virt_ee, cfg):
+    for text in identifiability_notes(demoset, R_virt_ee, cfg, tool.detach().cpu().numpy()):
         if text not in log.notes:  # a resumed checkpoint's notes may hold it already
             log.note(text)
     if lo < 0.5 or hi > 2.0:
