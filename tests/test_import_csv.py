@@ -40,6 +40,9 @@ def test_the_shipped_recordings_import_trim_and_learn_the_hand(tmp_path, capsys)
     trimmed = [float(x) for x in re.findall(r"trimmed ([0-9.]+) s \+ ([0-9.]+) s", r.stdout) for x in x]
     assert len(trimmed) == 10 and all(0.9 < x < 1.1 for x in trimmed), r.stdout  # the 1 s pauses, each end
     assert r.stdout.count("landmarks tracked") == 5
+    # each recording's file is named (later messages name the file, not the recording)
+    assert re.findall(r"^(demo_\d+) -> (demo_\d+\.npz):", r.stdout, re.M) == [
+        (f"demo_{i + 1:02d}", f"demo_{i:03d}.npz") for i in range(5)]
     ds = load_demos(tmp_path / "set")
     assert ds.task.name == "handover" and ds.task.dt == pytest.approx(0.1) and ds.landmark_names[0] == "hand"
     assert all(d.landmarks.shape == (d.n_samples, 3, 4, 4) for d in ds.demos)

@@ -134,11 +134,11 @@ def main(argv=None, prog: str = PROG) -> int:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    for r in report:
+    for i, r in enumerate(report):  # (the files are numbered in this order: later messages name the file)
         trimmed = f", trimmed {r['trimmed_start_s']:g} s + {r['trimmed_end_s']:g} s" \
             if r["trimmed_start_s"] or r["trimmed_end_s"] else ""
-        print(f"{r['name']}: {r['raw_samples']} rows -> {r['samples']} samples at {args.rate:g} Hz{trimmed}; "
-              f"landmarks {r['landmarks']}")
+        print(f"{r['name']} -> demo_{i:03d}.npz: {r['raw_samples']} rows -> {r['samples']} samples at "
+              f"{args.rate:g} Hz{trimmed}; landmarks {r['landmarks']}")
     print(f"wrote {len(ds.demos)} demonstrations of {args.task!r} (landmarks {list(ds.landmark_names)}, "
           f"robot {robot.name}) to {args.out}", file=sys.stdout)
     return 0
