@@ -462,7 +462,10 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
     with guard.critical():  # the model's files, each atomic, and never split by a signal
         m.save(out)
         atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
-    print(f"learned in {summary['learning_time_s']:.1f}s: tool {np.round(m.tool.cpu().numpy(), 4).tolist()}, "
+    session = result.timings["session_s"]
+    took = (f"{summary['learning_time_s']:.1f}s ({session:.1f}s in this session)" if result.resumed_restarts
+            else f"{summary['learning_time_s']:.1f}s")
+    print(f"learned in {took}: tool {np.round(m.tool.cpu().numpy(), 4).tolist()}, "
           f"env {summary['env_weights']}; wrote {out}", flush=True)
     if "tool_point_error_m" in summary:
         print(f"  the tool point is {summary['tool_point_error_m'] * 100:.1f} cm from the demonstrator's hidden "

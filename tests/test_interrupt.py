@@ -94,10 +94,13 @@ def test_interrupt_and_resume_equal_an_uninterrupted_run(demos, reference, tmp_p
     assert f"resuming from {checkpoint_path(out)}: {first.restarts_done} of {RESTARTS}" in stdout
     second = _check_interrupted(code, err, out, signal.SIGTERM)
     assert second.restart_losses[:first.restarts_done] == first.restart_losses
+    assert 0 < first.elapsed_s < second.elapsed_s  # the fit's time goes on across sessions
 
     assert train.main(_args(demos, out, "--resume")) == 0
     got, want = (json.loads((d / "summary.json").read_text()) for d in (out, reference))
     assert got["resumed_restarts"] == second.restarts_done and want["resumed_restarts"] == 0
+    # the learning time counts every session (it was the last session's alone)
+    assert got["learning_time_s"] > second.elapsed_s and got["timings"]["session_s"] < got["learning_time_s"]
     assert got["final_loss"] == pytest.approx(want["final_loss"], abs=1e-9)
     assert got["restart_losses"] == pytest.approx(want["restart_losses"], abs=1e-9)
     np.testing.assert_allclose(got["tool_point"], want["tool_point"], atol=1e-9)

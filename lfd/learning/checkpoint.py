@@ -25,6 +25,7 @@ import dataclasses
 import hashlib
 import io
 import json
+import math
 import os
 import pickle
 import re
@@ -179,6 +180,7 @@ class FitProgress:
     best_restart: int | None = None
     best_state: dict | None = field(default=None, compare=False)
     source: Path | None = field(default=None, compare=False)
+    elapsed_s: float = field(default=0.0, compare=False)  # the fit's wall time so far, every session's
 
     @property
     def restarts_done(self) -> int:
@@ -217,12 +219,20 @@ def save_checkpoint(folder: str | Path, progress: FitProgress) -> Path:
               "restart_losses": [None if not np.isfinite(x) else float(x) for x in progress.restart_losses],
               "loss_history": [list(h) for h in progress.loss_history],
               "em_iterations": list(progress.em_iterations), "notes": list(progress.notes),
-              "best_restart": progress.best_restart}
+              "best_restart": progress.best_restart, "elapsed_s": float(progress.elapsed_s)}
     atomic_write_text(folder / RECORD, json.dumps(record, indent=2) + "\n")
     for old in folder.glob("checkpoint_r*.pt"):
         if old.name != pt_name:
             old.unlink(missing_ok=True)
     return folder / RECORD
+
+
+def _seconds(x) -> float:
+    """A recorded duration: a finite number >= 0 (a checkpoint written before durations were
+    recorded has none: 0)."""
+    if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) or x < 0:
+        raise ValueError(f"elapsed_s must be a number of seconds >= 0, got {x!r}")
+    return float(x)
 
 
 def read_json(path: Path, error: type[Exception]):
@@ -283,7 +293,7 @@ def load_checkpoint(folder: str | Path) -> FitProgress:
             loss_history=tuple(tuple(float(x) for x in h) for h in rec["loss_history"]),
             em_iterations=tuple(int(x) for x in rec["em_iterations"]), notes=tuple(map(str, rec["notes"])),
             best_restart=None if rec["best_restart"] is None else int(rec["best_restart"]),
-            best_state=state or None, source=rec_path)
+            best_state=state or None, source=rec_path, elapsed_s=_seconds(rec.get("elapsed_s", 0.0)))
     except (KeyError, TypeError, ValueError) as e:
         raise CheckpointError(f"{rec_path}: incomplete record ({type(e).__name__}: {e})") from e
     if (progress.best_restart is None) != (progress.best_state is None):

@@ -279,7 +279,7 @@ class FitResult:
     effective_demos: tuple[float, ...]  # per step, in the final alignment (lfd.learning.dtw.effective_demos);
     # a warning when the median is under M / 3 (with M >= 4 demonstrations)
     warnings: tuple[str, ...]
-    timings: dict
+    timings: dict  # s: fk_s, restarts_s, refit_s and session_s of this call; total_s with the resumed sessions'
     resumed_restarts: int = 0  # restarts taken from a checkpoint instead of run
 
 

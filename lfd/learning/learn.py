@@ -194,7 +194,7 @@ def occupancy_note(eff: np.ndarray, n_demos: int) -> str | None:
             f"of their own, so those steps describe single scenes")
 
 
-def _progress(cfg, fingerprint, histories, losses, iters, notes, best) -> FitProgress:
+def _progress(cfg, fingerprint, histories, losses, iters, notes, best, elapsed_s: float) -> FitProgress:
     state = None
     if best is not None:
         tool, w, mu, sigma_inv, log_trans, align = best[1]
@@ -202,7 +202,7 @@ def _progress(cfg, fingerprint, histories, losses, iters, notes, best) -> FitPro
                  "alignment": torch.as_tensor(np.concatenate(align).astype(np.int64))}
     return FitProgress(config=config_record(cfg), fingerprint=fingerprint, restart_losses=tuple(losses),
                        loss_history=tuple(histories), em_iterations=tuple(iters), notes=tuple(notes),
-                       best_restart=None if best is None else best[0], best_state=state)
+                       best_restart=None if best is None else best[0], best_state=state, elapsed_s=elapsed_s)
 
 
 def _check_inputs(demoset, cfg: FitConfig) -> None:
@@ -309,10 +309,12 @@ def restart_workers(workers: int | None, restarts: int) -> int:
 
 
 def _run_restarts(demoset, data: FitData, cfg: FitConfig, fixed, callback, dtype, device, on_restart,
-                  resume, fingerprint: str, workers: int | None = None) -> _RestartLog:
+                  resume, fingerprint: str, workers: int | None = None, t0: float = 0.0) -> _RestartLog:
     """The EM from ``cfg.restarts`` initial guesses (those a resumed checkpoint finished are
     skipped, not repeated), ``workers`` at once in threads (see ``fit``); ``on_restart`` gets the
-    progress after each, in restart order."""
+    progress after each, in restart order, with the fit's time since ``t0`` (``time.perf_counter``)
+    and the resumed sessions'."""
+    earlier_s = resume.elapsed_s if resume is not None else 0.0
     names = tuple(demoset.landmark_names)
     Z = len(names)
     fixed_tool, fixed_env = fixed
@@ -352,7 +354,8 @@ def _run_restarts(demoset, data: FitData, cfg: FitConfig, fixed, callback, dtype
                 if log.best is None or hist[-1] < log.losses[log.best[0]]:
                     log.best = (r, state)
             if on_restart is not None:  # before the next restart's events, as one at a time
-                on_restart(_progress(cfg, fingerprint, log.histories, log.losses, log.iters, log.notes, log.best))
+                on_restart(_progress(cfg, fingerprint, log.histories, log.losses, log.iters, log.notes, log.best,
+                                     earlier_s + time.perf_counter() - t0))
             events.advance(r + 1)
     except BaseException:
         events.stop.set()  # the running restarts end at their next iteration
@@ -419,7 +422,7 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     t_fk = time.perf_counter() - t0
 
     log = _run_restarts(demoset, data, cfg, fixed, callback, dtype, device, on_restart, resume, fingerprint,
-                        workers)
+                        workers, t0)
     assert log.best is not None
     best_r = log.best[0]
     env_before = {n: float(x) for n, x in zip(names, log.best[1][1].cpu().numpy())}
@@ -466,5 +469,6 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
                      virtual_det=tuple(float(x) for x in det), effective_demos=tuple(float(x) for x in eff),
                      warnings=tuple(log.notes),
                      timings={"fk_s": t_fk, "restarts_s": t_restarts,
-                              "refit_s": total - t_fk - t_restarts, "total_s": total},
+                              "refit_s": total - t_fk - t_restarts, "session_s": total,
+                              "total_s": total + (resume.elapsed_s if resume is not None else 0.0)},
                      resumed_restarts=log.first)
