@@ -439,7 +439,7 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
           f"{list(ds.landmark_names)}; T={cfg.time_steps}, {cfg.restarts} restarts "
           f"({restart_workers(args.workers, cfg.restarts - (resumed.restarts_done if resumed else 0))} at once)",
           flush=True)
-    log = Logger(out, ds.joint_names, quiet=args.quiet, prog=prog)
+    log = Logger(out, ds.joint_names, quiet=args.quiet, prog=prog, resume=resumed is not None)
     shown = [len(resumed.notes) if resumed else 0]
 
     def on_restart(p) -> None:

@@ -6,6 +6,7 @@ the library (``lfd.learning``) reports through callbacks and writes no logs.
 
 from __future__ import annotations
 
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -18,22 +19,44 @@ __all__ = ["Logger"]
 class Logger:
     """Progress on stdout and TensorBoard scalars/images (the only SummaryWriter owner).
 
-    ``quiet``: no line per EM iteration. Without TensorBoard installed it says so once on stderr
-    and writes no logs."""
+    Each session of a fit logs into a run of its own, ``out/tensorboard/session-<k>``, made at its
+    first event (a run refused before learning leaves none): a ``resume``d session's restarts
+    start their curves again from step 0 beside the earlier session's, and a fresh fit first
+    removes the earlier fits' runs, which described the model it replaces (they were mixed into
+    one curve). ``quiet``: no line per EM iteration. Without TensorBoard installed it says so
+    once on stderr and writes no logs."""
 
-    def __init__(self, out: Path, joint_names, quiet: bool = False, prog: str = "lfd-train"):
+    def __init__(self, out: Path, joint_names, quiet: bool = False, prog: str = "lfd-train", resume: bool = False):
+        self.root = Path(out) / "tensorboard"
         try:
             from torch.utils.tensorboard import SummaryWriter
         except ImportError as e:
-            self.writer = None
+            self._make = None
             print(f"{prog}: warning: TensorBoard is not installed ({e}), so no TensorBoard logs are written "
-                  f"to {out / 'tensorboard'}; pip install tensorboard to have them", file=sys.stderr, flush=True)
+                  f"to {self.root}; pip install tensorboard to have them", file=sys.stderr, flush=True)
         else:
-            self.writer = SummaryWriter(str(out / "tensorboard"))
+            self._make = SummaryWriter
+        self.resume = resume
+        self._writer = None
         self.joint_names = list(joint_names)
         self.quiet = quiet
         self.step = 0
         self.t0 = time.perf_counter()
+
+    @property
+    def writer(self):
+        """The session's ``SummaryWriter`` (None without TensorBoard), made on first use."""
+        if self._writer is None and self._make is not None:
+            if not self.resume:
+                for old in self.root.glob("session-*"):
+                    shutil.rmtree(old, ignore_errors=True)
+                for old in self.root.glob("events.out.tfevents.*"):  # (written there before sessions)
+                    old.unlink(missing_ok=True)
+            k = 0
+            while (self.root / f"session-{k}").exists():
+                k += 1
+            self._writer = self._make(str(self.root / f"session-{k}"))
+        return self._writer
 
     def __call__(self, ev: dict) -> None:
         self.step += 1
@@ -69,6 +92,7 @@ class Logger:
             w.add_image(f"alignment/demo_{i:02d}", img, 0)
 
     def close(self) -> None:
-        if self.writer is not None:
-            self.writer.close()
-            self.writer = None
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        self._make = None  # (no writer is made after the close)

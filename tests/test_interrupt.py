@@ -99,6 +99,9 @@ def test_interrupt_and_resume_equal_an_uninterrupted_run(demos, reference, tmp_p
     assert train.main(_args(demos, out, "--resume")) == 0
     got, want = (json.loads((d / "summary.json").read_text()) for d in (out, reference))
     assert got["resumed_restarts"] == second.restarts_done and want["resumed_restarts"] == 0
+    # each session's TensorBoard run apart (a resumed restart's curve ran over its first attempt's)
+    assert sorted(p.name for p in (out / "tensorboard").iterdir()) == ["session-0", "session-1", "session-2"]
+    assert [p.name for p in (reference / "tensorboard").iterdir()] == ["session-0"]
     # the learning time counts every session (it was the last session's alone)
     assert got["learning_time_s"] > second.elapsed_s and got["timings"]["session_s"] < got["learning_time_s"]
     assert got["final_loss"] == pytest.approx(want["final_loss"], abs=1e-9)

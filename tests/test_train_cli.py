@@ -593,11 +593,32 @@ def test_tensorboard_shows_every_features_spread_with_the_attitude(synth_dir, tm
                                            "--time-steps", "5", "--features", "attitude", "--quiet",
                                            "--out", tmp_path / "o"], capsys)
     assert r.returncode == 0, r.stderr
-    ev = EventAccumulator(str(tmp_path / "o" / "tensorboard"))
+    ev = EventAccumulator(str(tmp_path / "o" / "tensorboard" / "session-0"))
     ev.Reload()
     spreads = [t for t in ev.Tags()["scalars"] if t.startswith("features/std/")]
     assert len(spreads) == 7 + 9 and "features/std/task_z" in spreads and "features/std/gripper_y_z" in spreads
     assert len(ev.Scalars("features/std/gripper_x_x")) == 5
+    # a fresh fit into the same folder replaces the earlier fit's run (two fits were one curve)
+    steps = [e.step for e in ev.Scalars("loss/all")]
+    r = run_cli(*entry_point("train.py"), ["--task", "powder", "--demos", synth_dir, "--restarts", "1",
+                                           "--time-steps", "5", "--features", "attitude", "--quiet",
+                                           "--out", tmp_path / "o"], capsys)
+    assert r.returncode == 0, r.stderr
+    assert [p.name for p in (tmp_path / "o" / "tensorboard").iterdir()] == ["session-0"]
+    again = EventAccumulator(str(tmp_path / "o" / "tensorboard" / "session-0"))
+    again.Reload()
+    assert [e.step for e in again.Scalars("loss/all")] == steps
+    # a fit refused before its first event writes no run (one demonstration for a learned landmark)
+    import shutil
+    one = tmp_path / "one"
+    one.mkdir()
+    for name in ("demo_000.npz", "task.json"):
+        shutil.copy(Path(synth_dir) / name, one / name)
+    (tmp_path / "p").mkdir()
+    r = run_cli(*entry_point("train.py"), ["--task", "powder", "--demos", one, "--restarts", "1",
+                                           "--time-steps", "5", "--quiet", "--out", tmp_path / "p"], capsys)
+    assert r.returncode == 2 and "at least 2 demonstrations" in r.stderr, r.stderr
+    assert not (tmp_path / "p" / "tensorboard").exists()
 
 
 @pytest.mark.parametrize("name", ["model.pt", "config.json"])
