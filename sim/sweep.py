@@ -61,14 +61,17 @@ def job_error_line(e: BaseException) -> str:
 PR_SET_PDEATHSIG = 1  # prctl(2): the signal a process gets when its parent ends
 
 
-def _start_worker(parent: int, initializer: Callable[[], None] | None) -> None:
+def _start_worker(parent: int | None, initializer: Callable[[], None] | None) -> None:
     """First thing in each worker of a local pool: SIGINT is left to the driver (a terminal's
     Ctrl-C reaches the whole process group, and every idle worker printed a KeyboardInterrupt
     traceback), SIGTERM ends it quietly (a fork inherits the driver's handlers, which raise), and
-    on Linux the worker gets SIGTERM when the driver ends, however it ends; then ``initializer``."""
+    on Linux a worker forked by the driver (pid ``parent``; None when another process starts the
+    workers, as the forkserver does) gets SIGTERM when the thread that forked it ends: the pool
+    forks from the thread that submits, the driver's main thread here, so when the driver ends,
+    however it ends; then ``initializer``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    if sys.platform.startswith("linux"):
+    if parent is not None and sys.platform.startswith("linux"):
         try:
             ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
         except (OSError, AttributeError):  # no prctl here: the driver's close() still stops the worker
@@ -114,9 +117,10 @@ class LocalExecutor:
     def _ensure_pool(self) -> cf.ProcessPoolExecutor:
         if self._pool is None:
             self._context = _Tracked()
+            forked = self._context.get_start_method() == "fork"
             self._pool = cf.ProcessPoolExecutor(max_workers=self.workers, mp_context=self._context,  # type: ignore[call-overload]
                                                 initializer=_start_worker,
-                                                initargs=(os.getpid(), self.initializer))
+                                                initargs=(os.getpid() if forked else None, self.initializer))
         return self._pool
 
     def run(self, fn: Callable, jobs: list[Job]):
