@@ -317,7 +317,7 @@ def _summary(result, ds, cfg, n_obs: int) -> dict:
     from lfd.learning.checkpoint import demos_fingerprint
     m = result.model
     summary = {"learning_time_s": result.timings["total_s"], "n_demos": len(ds.demos),
-               "demos_fingerprint": demos_fingerprint(ds),
+               "demos_fingerprint": demos_fingerprint(ds, settings=False),
                "n_observations": n_obs, "subsample": cfg.subsample, "dt": float(m.task.dt) if m.task else None,
                "features": cfg.features, "time_steps": cfg.time_steps, "restarts": cfg.restarts,
                "covariance": cfg.covariance, "max_dwell": cfg.max_dwell, "seed": cfg.seed, "final_loss": result.final_loss,

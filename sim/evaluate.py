@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from lfd.cli import USER_ERRORS, UsageError, error_line
-from lfd.learning.checkpoint import read_json
+from lfd.learning.checkpoint import checkpoint_path, read_json
 from lfd.learning.demos import load_demos, set_folder
 from lfd.train_cli import default_demos, ensure_demos
 from lfd.train_cli import main as train_main
@@ -167,8 +167,6 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_
     base seeds compare the same models. Draw k > 0 is generated here (seed k) when missing."""
     out = model_dir_for(models, v, demo_seed)
     if (out / "model.pt").is_file() and (out / "config.json").is_file():
-        if demos is not None and not demo_seed:
-            _check_trained_on(out, demos)
         return out
     demos = demos_for(task, demos, demo_seed)
     if demo_seed:
@@ -184,6 +182,8 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_
     argv = ["--task", task, "--tool", v.tool, "--env", v.env, "--out", str(out), "--seed", str(train_seed)]
     if demos is not None:
         argv += ["--demos", str(demos)]
+    if checkpoint_path(out).is_file():  # an interrupted training of this model: go on from its restarts
+        argv.append("--resume")
     print(f"[evaluate] training {v.model_key}: lfd-train {shlex.join(argv)}", file=sys.stderr, flush=True)
     try:
         code = train_main(argv)
@@ -194,20 +194,31 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_
     return out
 
 
-def _check_trained_on(model_dir: Path, demos: Path) -> None:
-    """``UsageError`` when the model in ``model_dir`` was trained on other demonstrations than
-    ``demos`` (its ``summary.json``'s fingerprint; a model trained before it was recorded is taken
-    as it is): it was evaluated as is, and its tilt measured against demonstrations it never saw."""
+def check_trained_on(task: str, models: Path, demos: Path | None, variants, demo_seeds) -> None:
+    """``UsageError`` when a trained model among ``variants`` x ``demo_seeds`` was trained on other
+    demonstrations than its draw's (``--demos``, or the default folder, for draw 0): it was
+    evaluated as is, its tilt measured against demonstrations it never saw. Checked before any
+    training, by the fingerprint of the recordings in its ``summary.json`` (a model trained before
+    it was recorded, or whose demonstrations are not on this machine, is taken as it is)."""
     from lfd.learning.checkpoint import demos_fingerprint
-    summary = _read_summary(model_dir / "summary.json")
-    recorded, steps = summary.get("demos_fingerprint"), summary.get("time_steps")
-    if not isinstance(recorded, str):
-        return
-    ds = load_demos(demos, time_steps=steps if isinstance(steps, int) and steps >= 2 else None)  # (as it was trained)
-    if recorded != demos_fingerprint(ds):
-        raise UsageError(f"--models: {model_dir} was trained on other demonstrations than --demos {demos}; give "
-                         f"the demonstrations it was trained on, another --models folder, or delete that model "
-                         f"to train it on these")
+    for k in demo_seeds:
+        source = demos_for(task, demos, k) or default_demos(task)
+        mine = None  # the draw's fingerprint, read once
+        for v in variants:
+            d = model_dir_for(models, v, k)
+            if not ((d / "model.pt").is_file() and (d / "config.json").is_file()):
+                continue
+            summary = _read_summary(d / "summary.json")
+            recorded, steps = summary.get("demos_fingerprint"), summary.get("time_steps")
+            if not isinstance(recorded, str) or not set_folder(source).is_dir():
+                continue
+            if mine is None:  # (loaded as it was trained: at least its number of steps)
+                mine = demos_fingerprint(load_demos(source, time_steps=steps if isinstance(steps, int) and steps >= 2
+                                                    else None), settings=False)
+            if recorded != mine:
+                raise UsageError(f"--models: {d} was trained on other demonstrations than {source}; give the "
+                                 f"demonstrations it was trained on (--demos), another --models folder, or delete "
+                                 f"that model to train it on these")
 
 
 def save_path(out_dir: Path, row: dict, path) -> str:
@@ -257,7 +268,7 @@ def run_settings_of(settings: EvalSettings, models: Path) -> dict:
     """What makes two logged runs of one (variant, draw, scenario) the same run, besides the
     latency mode and the executor's pace: the task, the roadmap size, the models folder, the bowl
     move when set, and with measured latency the executor and its workers (or cluster address)."""
-    out: dict = {"task": settings.task, "roadmap_size": settings.roadmap_size, "models": str(Path(models).resolve())}
+    out: dict = {"task": settings.task, "roadmap_size": settings.roadmap_size, "models": str(models)}
     if settings.move_bowl:  # (only then: runs logged before the option existed still count)
         out["move_bowl"] = True
     if settings.latency == "measured":
@@ -275,8 +286,9 @@ def _same_settings(logged: dict, wanted: dict) -> bool:
 
 
 def _same_value(key: str, logged, wanted) -> bool:
-    """One setting; the models folder by where it is (``mdir``, ``./mdir`` and its absolute path
-    are one folder; a relative path logged before paths were resolved is read from here)."""
+    """One setting; the models folder by where it is from here (``mdir``, ``./mdir`` and its
+    absolute path are one folder; logged as given, so a project moved with its runs still counts
+    them when named relatively)."""
     if key == "models" and isinstance(logged, str) and isinstance(wanted, str):
         return os.path.realpath(logged) == os.path.realpath(wanted)
     return logged == wanted
@@ -379,6 +391,7 @@ def evaluate(settings: EvalSettings, out_dir: Path, models: Path, demos: Path | 
               f"{run_settings}", file=sys.stderr, flush=True)
     if settings.executor == "ray":
         require_ray(settings.address)  # before hours of training, not after
+    check_trained_on(settings.task, models, demos, variants, settings.demo_seeds)  # before any training
     out_dir.mkdir(parents=True, exist_ok=True)
     summaries, tilt = {}, {}
     for k in settings.demo_seeds:

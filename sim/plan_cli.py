@@ -58,13 +58,14 @@ def available_mb() -> float | None:
         return None
 
 
-def check_roadmap_memory(n: int | None, time_steps: int, processes: int = 1) -> None:
+def check_roadmap_memory(n: int | None, time_steps: int, processes: int = 1, may_grow: bool = True) -> None:
     """``UsageError`` when ``processes`` roadmaps of ``n`` vertices (None: the default) for a
     ``time_steps``-step model cannot even be built in this machine's available memory (the
     kernel would kill the run without a word; the estimate: ``BASE_MB`` and ``MB_PER_VERTEX_STEP``).
     The growth after landmark moves may add up to twice as many vertices again (``GROWTH_CAP``):
-    a note on stderr says so when that would not fit, as runs grow less (one bowl move, measured
-    on 50 scenes each of the powder and the pour: 1.2-1.8 times the build)."""
+    a note on stderr says so when that would not fit and the run ``may_grow`` (it executes), as
+    runs grow less (one bowl move, measured on 50 scenes each of the powder and the pour: 1.2-1.8
+    times the build)."""
     from lfd.planning.task_settings import GROWTH_CAP, default_vertices
     vertices = default_vertices(time_steps) if n is None else n
 
@@ -72,7 +73,7 @@ def check_roadmap_memory(n: int | None, time_steps: int, processes: int = 1) -> 
         return processes * (BASE_MB + MB_PER_VERTEX_STEP * v * time_steps)
 
     need, have = need_mb(vertices), available_mb()
-    if have is not None and need <= have < need_mb(GROWTH_CAP * vertices):
+    if may_grow and have is not None and need <= have < need_mb(GROWTH_CAP * vertices):
         print(f"note: the roadmap may grow after landmark moves to {GROWTH_CAP * vertices} vertices, about "
               f"{need_mb(GROWTH_CAP * vertices) / 1024:.1f} GB{' in all' if processes > 1 else ''}, more than the "
               f"{have / 1024:.1f} GB available; a run that grows that far may be stopped by the kernel",
@@ -250,8 +251,12 @@ def main(argv=None, prog: str = PROG) -> int:
             with InterruptGuard():  # SIGTERM as Ctrl-C: the workers are stopped, not left running
                 payload = evaluate(settings, out, models, args.demos, progress, resume=args.resume)
         except TrainingFailed as e:  # the training's own reason is in the message; no traceback of ours
+            if e.returncode in (130, 143):  # interrupted while training a variant: its checkpoint is kept
+                print(f"{prog}: interrupted while training; go on with: {resume_command(argv, prog, PROG)}",
+                      file=sys.stderr)
+                return e.returncode
             print(f"{prog}: error: {e}", file=sys.stderr)
-            return e.returncode if e.returncode in (2, 130, 143) else 1
+            return e.returncode if e.returncode == 2 else 1
         except Interrupted as e:
             print(f"{prog}: interrupted by {e.name}; the finished runs are in {out / 'runs.jsonl'}; go on with: "
                   f"{resume_command(argv, prog, PROG)}", file=sys.stderr)
@@ -275,7 +280,7 @@ def main(argv=None, prog: str = PROG) -> int:
     if why:
         raise UsageError(f"--gui: {why}; plan without it (--plot draws the plan)")
     checked, task_name = load_checked_model(args.model, args.task)  # landmarks, robot, task: before any simulation
-    check_roadmap_memory(args.roadmap_size, checked.time_steps)
+    check_roadmap_memory(args.roadmap_size, checked.time_steps, may_grow=args.execute)
     # (not into the model's folder, which may be shared; one folder per model, so that two do not overwrite)
     out = writable_dir(args.out or Path("runs") / task_name / "plans" / args.model.resolve().name)
     scenario = draw_scenario(task_name, args.scenario_seed)

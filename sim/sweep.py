@@ -9,8 +9,9 @@ A dead worker of the local pool fails every job of the pool; those are run again
 so that only the job that kills a worker on its own is charged with the failure.
 Ctrl-C or SIGTERM in the driver stops everything and propagates: what was in flight is lost, what
 finished was handed over already. The local pool's workers leave SIGINT to the driver, which
-terminates them, and on Linux they end with the driver (``PR_SET_PDEATHSIG``) even when it is
-killed outright, so no worker is left running jobs for nobody.
+terminates them, and on Linux (where the pool forks them) they end with the driver
+(``PR_SET_PDEATHSIG``) even when it is killed outright, so no worker is left running jobs for
+nobody.
 
 Executors (``make_executor``):
 
@@ -83,11 +84,14 @@ def _start_worker(parent: int | None, initializer: Callable[[], None] | None) ->
 
 
 class _Tracked:
-    """The default multiprocessing context, remembering the processes it starts (the pool's
-    workers, which ``concurrent.futures`` does not name)."""
+    """A multiprocessing context remembering the processes it starts (the pool's workers, which
+    ``concurrent.futures`` names only from Python 3.14, ``terminate_workers``): on Linux "fork",
+    so that each worker is the driver's child (Python 3.14 made the forkserver the default, whose
+    workers outlive a driver killed outright), elsewhere the platform's default."""
 
     def __init__(self):
-        self._ctx, self.processes = mp.get_context(), []
+        self._ctx = mp.get_context("fork" if sys.platform.startswith("linux") else None)
+        self.processes: list = []
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._ctx, name)

@@ -15,6 +15,7 @@ Command line: ``python -m sim.world [--task powder|pour] [--gui] [--snapshot FIL
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import socket
@@ -69,16 +70,22 @@ _DISPLAY = re.compile(r"(?:(?P<proto>[A-Za-z]+)/)?(?P<host>[^:/]*):(?P<n>\d+)(?:
 
 def no_display(timeout: float | None = None) -> str:
     """Why the PyBullet GUI cannot open here, or ``""``: on Linux, ``DISPLAY`` unset, or an X
-    server there that refuses the connection or does not answer its set-up within ``timeout``
+    server there that cannot be connected to or does not answer its set-up within ``timeout``
     seconds (default ``X_ANSWER_S``). PyBullet itself exits the process on the first ("cannot
     connect to X server", status 1) and waits for ever on the second. A ``DISPLAY`` of another
-    form is left to PyBullet."""
-    timeout = X_ANSWER_S if timeout is None else timeout
+    form is left to PyBullet. The probe's outcome is kept per display for this process (the
+    command line and then ``World`` ask)."""
     if not sys.platform.startswith("linux"):
         return ""
     display = os.environ.get("DISPLAY")
     if not display:
         return "the PyBullet GUI needs a display (DISPLAY is not set)"
+    return _x_problem(display, X_ANSWER_S if timeout is None else timeout)
+
+
+@functools.lru_cache(maxsize=8)
+def _x_problem(display: str, timeout: float) -> str:
+    """``no_display``'s probe of the X server of ``display``."""
     m = _DISPLAY.fullmatch(display)
     if m is None:
         return ""
@@ -99,8 +106,10 @@ def no_display(timeout: float | None = None) -> str:
 
 
 def _x_answers(family: int, address, timeout: float) -> str:
-    """Send the X11 connection set-up (no authorization) and wait for the first byte of any answer
-    (Failed, Success or Authenticate: the server is there); ``""`` or what went wrong."""
+    """Send the X11 connection set-up (no authorization) and wait for any sign of a server: a
+    reply (Failed, Success or Authenticate), or the connection closed (ssh's X forwarding closes
+    one without the cookie, which PyBullet sends); ``""``, or what went wrong: no connection, or
+    nothing at all within ``timeout`` seconds (a hung server)."""
     with socket.socket(family, socket.SOCK_STREAM) as sock:
         sock.settimeout(timeout)
         try:
@@ -109,12 +118,11 @@ def _x_answers(family: int, address, timeout: float) -> str:
             return f"cannot be reached ({e.strerror or e})"
         try:
             sock.sendall(b"l\0" + struct.pack("<HHHH", 11, 0, 0, 0) + b"\0\0")
-            if not sock.recv(1):
-                return "closed the connection without an answer"
+            sock.recv(1)
         except TimeoutError:
             return f"does not answer (nothing in {timeout:g} s)"
-        except OSError as e:
-            return f"broke the connection ({e.strerror or e})"
+        except OSError:  # reset: something is there and refused this set-up
+            pass
     return ""
 
 

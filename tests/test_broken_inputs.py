@@ -356,9 +356,10 @@ def test_plan_cli_gui_without_a_display_is_one_line(capsys, monkeypatch):
 
 class _FakeX:
     """A listener where an X server would be: ``answer`` bytes sent back after the client's
-    connection set-up (``b""``: it accepts and never answers, like a hung server)."""
+    connection set-up (``b""``: it accepts and never answers, like a hung server; None: it
+    closes the connection, as ssh's X forwarding does without the cookie)."""
 
-    def __init__(self, family, address, answer: bytes):
+    def __init__(self, family, address, answer: bytes | None):
         self.sock = socket.socket(family, socket.SOCK_STREAM)
         self.sock.bind(address)
         self.sock.listen(4)
@@ -373,7 +374,9 @@ class _FakeX:
                 return
             self.conns.append(conn)
             self.received.append(conn.recv(12))
-            if self.answer:
+            if self.answer is None:  # as ssh's X forwarding does with a set-up without its cookie
+                conn.close()
+            elif self.answer:
                 conn.sendall(self.answer)
 
     def close(self):
@@ -383,7 +386,7 @@ class _FakeX:
         self.sock.close()
 
 
-def _fake_x(family, answer: bytes):
+def _fake_x(family, answer: bytes | None):
     """A ``_FakeX`` on a free display number; ``(server, DISPLAY)``."""
     for n in range(4242, 4342):
         address = ("127.0.0.1", 6000 + n) if family == socket.AF_INET else f"\0/tmp/.X11-unix/X{n}"
@@ -405,6 +408,7 @@ def test_gui_with_an_x_server_that_does_not_answer_is_refused_in_seconds(family,
     import sim.world
     monkeypatch.setattr(sys, "platform", "linux")
     monkeypatch.setattr(sim.world, "X_ANSWER_S", 0.3)
+    sim.world._x_problem.cache_clear()
     mute, display = _fake_x(family, b"")
     try:
         monkeypatch.setenv("DISPLAY", display)
@@ -415,13 +419,17 @@ def test_gui_with_an_x_server_that_does_not_answer_is_refused_in_seconds(family,
         assert mute.received and mute.received[0][:1] == b"l" and len(mute.received[0]) == 12  # the X11 set-up
     finally:
         mute.close()
+    sim.world._x_problem.cache_clear()
     assert "cannot be reached" in sim.world.no_display()  # nobody listens there now
-    server, display = _fake_x(family, b"\0")
-    try:
-        monkeypatch.setenv("DISPLAY", display)
-        assert sim.world.no_display() == ""
-    finally:
-        server.close()
+    for answer in (b"\0", None):  # 'Failed' (no cookie), or closed at once (ssh -X without the cookie)
+        sim.world._x_problem.cache_clear()
+        server, display = _fake_x(family, answer)
+        try:
+            monkeypatch.setenv("DISPLAY", display)
+            assert sim.world.no_display() == "", answer
+            assert sim.world.no_display() == "" and len(server.received) == 1  # probed once per display
+        finally:
+            server.close()
     for other in ("weird", "host/x:0", "tcp/h:99999999"):  # forms the probe does not know: left to PyBullet
         monkeypatch.setenv("DISPLAY", other)
         assert sim.world.no_display() == ""

@@ -354,10 +354,17 @@ def test_missing_model_is_trained_in_this_process(tmp_path, monkeypatch, capsys)
     assert config["options"]["tool"] == "gripper" and config["options"]["env"] == "bowl"
     assert seen[0][seen[0].index("--seed") + 1] == "0"
     assert ev.ensure_model(TASK, tmp_path / "models", demos, v) == out and len(seen) == 1  # trained once
-    # other demonstrations for a trained model: it was evaluated as it was, without a word
+    # other demonstrations for a trained model: it was evaluated as it was, without a word; refused
+    # before any training (the check reads the recordings alone: an edited task.json is the same set)
     other = synthetic_demo_dir(tmp_path / "demos2", 3, 4, 2, (3, 4))
-    with pytest.raises(UsageError, match=r"gripper-bowl was trained on other demonstrations than --demos .*demos2"):
-        ev.ensure_model(TASK, tmp_path / "models", other, v)
+    with pytest.raises(UsageError, match=r"gripper-bowl was trained on other demonstrations than .*demos2; give"):
+        ev.check_trained_on(TASK, tmp_path / "models", other, ev.VARIANTS, (0,))
+    task = json.loads((demos / "task.json").read_text())
+    (demos / "task.json").write_text(json.dumps({**task, "restarts": 7}))
+    ev.check_trained_on(TASK, tmp_path / "models", demos, ev.VARIANTS, (0,))
+    with pytest.raises(UsageError, match="trained on other demonstrations"):
+        ev.evaluate(replace(_settings(), variants=("arbitrary+manual",)), tmp_path / "eval_other",
+                    tmp_path / "models", other)
     assert len(seen) == 1
     # --models naming one model's folder: a new model was trained inside it
     with pytest.raises(UsageError, match=r"a model's own folder \(it holds model.pt or config.json\)"):
@@ -382,18 +389,14 @@ def test_runs_of_another_roadmap_size_or_models_folder_are_run_again(tmp_path, m
 
 
 def test_the_same_models_folder_named_otherwise_counts_on_resume(tmp_path, models, monkeypatch, capsys):
-    """``--models mdir``, then ``--resume`` with ``$PWD/mdir`` (or from another folder) ran every
-    logged run again: the folder is compared by where it is, also with a relative path logged
-    before paths were resolved."""
+    """``--models mdir``, then ``--resume`` with ``$PWD/mdir`` or ``./mdir`` ran every logged run
+    again: the folder is compared by where it is."""
     out = tmp_path / "eval"
     monkeypatch.setattr(ev, "run_one", FakeRunOne())
     monkeypatch.chdir(models.parent)
     ev.evaluate(_settings(), out, Path(models.name))
     rows = [json.loads(x) for x in (out / "runs.jsonl").read_text().splitlines()]
-    assert {r["settings"]["models"] for r in rows} == {str(models.resolve())}
-    for r in rows:  # as a log written before the folder was resolved
-        r["settings"]["models"] = models.name
-    (out / "runs.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    assert {r["settings"]["models"] for r in rows} == {models.name}  # as given
     for named in (models.resolve(), Path(".") / models.name):
         again = FakeRunOne()
         monkeypatch.setattr(ev, "run_one", again)

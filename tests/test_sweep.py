@@ -326,6 +326,35 @@ def test_an_interrupted_evaluation_names_the_command_that_goes_on(tmp_path, mode
                    f"go on with: lfd-plan {' '.join(argv)} --resume")
 
 
+def test_a_training_interrupted_inside_an_evaluation_goes_on_from_its_checkpoint(tmp_path, models, monkeypatch,
+                                                                                  capsys):
+    """SIGTERM while ``--evaluate`` trained a variant: the training kept its checkpoint, but the
+    command said only "error: ... stopped with exit status 143", and the next run trained that
+    variant again from its first restart. Now it says how to go on, and the next run resumes."""
+    import sim.model_check
+    from sim import plan_cli
+
+    def interrupted(*a, **kw):
+        raise ev.TrainingFailed("training the learned+learned model (learn-learn) stopped with exit status 143", 143)
+
+    monkeypatch.setattr(sim.model_check, "check_models_for_task", lambda *a, **kw: [])
+    monkeypatch.setattr(ev, "evaluate", interrupted)
+    argv = ["--evaluate", "--task", TASK, "--workers", "1", "--variants", "learned+learned",
+            "--models", str(models), "--out", str(tmp_path / "eval")]
+    assert plan_cli.main(argv, prog="lfd-plan") == 143
+    assert capsys.readouterr().err.strip() == f"lfd-plan: interrupted while training; go on with: lfd-plan {' '.join(argv)} --resume"
+
+    seen = []
+    monkeypatch.setattr(ev, "train_main", lambda argv: seen.append(list(argv)) or 0)
+    v = next(x for x in ev.VARIANTS if x.name == "learned+learned")
+    out = ev.model_dir_for(tmp_path / "fresh", v)
+    ev.ensure_model(TASK, tmp_path / "fresh", None, v)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "checkpoint.json").write_text("{}")  # what an interrupted training leaves
+    ev.ensure_model(TASK, tmp_path / "fresh", None, v)
+    assert "--resume" not in seen[0] and seen[1][-1] == "--resume"
+
+
 def test_an_unreachable_ray_address_is_refused_before_any_training(tmp_path, monkeypatch):
     pytest.importorskip("ray")
     trained = []

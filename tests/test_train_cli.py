@@ -727,6 +727,7 @@ def test_a_roadmap_the_memory_cannot_hold_is_refused_before_the_build(tmp_path, 
     assert capsys.readouterr().err.startswith("note: the roadmap may grow after landmark moves to 3600 vertices, "
                                               "about 4.4 GB, more than the 3.9 GB available")
     cli.check_roadmap_memory(500, 48)  # 1.5 GB; 2.4 GB grown: no note
+    cli.check_roadmap_memory(1200, 48, may_grow=False)  # a plan that is not executed: nothing moves
     assert capsys.readouterr().err == ""
     monkeypatch.setattr(cli, "available_mb", lambda: 1500.0)
     model = _model(tmp_path, names=("bowl",))

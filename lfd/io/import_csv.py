@@ -128,16 +128,16 @@ def main(argv=None, prog: str = PROG) -> int:
     os.umask(umask)
     tmp.chmod(0o777 & ~umask)  # mkdtemp's folder is private; the set gets a folder's usual mode
     try:
-        save_demos(tmp, ds)
+        files = [p.name for p in save_demos(tmp, ds)]
         load_demos(tmp)  # every check of the format, before the set takes its name
         tmp.rename(args.out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    for i, r in enumerate(report):  # (the files are numbered in this order: later messages name the file)
+    for r, file in zip(report, files):  # (later messages name the file, not the recording)
         trimmed = f", trimmed {r['trimmed_start_s']:g} s + {r['trimmed_end_s']:g} s" \
             if r["trimmed_start_s"] or r["trimmed_end_s"] else ""
-        print(f"{r['name']} -> demo_{i:03d}.npz: {r['raw_samples']} rows -> {r['samples']} samples at "
+        print(f"{r['name']} -> {file}: {r['raw_samples']} rows -> {r['samples']} samples at "
               f"{args.rate:g} Hz{trimmed}; landmarks {r['landmarks']}")
     print(f"wrote {len(ds.demos)} demonstrations of {args.task!r} (landmarks {list(ds.landmark_names)}, "
           f"robot {robot.name}) to {args.out}", file=sys.stdout)

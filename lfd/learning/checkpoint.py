@@ -146,15 +146,18 @@ def config_record(cfg) -> dict:
     return out
 
 
-def demos_fingerprint(demoset) -> str:
-    """sha256 of what a fit reads from a ``DemoSet``: robot, task, names, and every array. The
-    task's ``subsample`` is left out: it only picks a default of ``FitConfig.subsample``, which
-    ``config_record`` covers, so editing it in ``task.json`` reads as an option change."""
+def demos_fingerprint(demoset, settings: bool = True) -> str:
+    """sha256 of what a fit reads from a ``DemoSet``: names, every array and, with ``settings``,
+    the robot and the task. The task's ``subsample`` is left out: it only picks a default of
+    ``FitConfig.subsample``, which ``config_record`` covers, so editing it in ``task.json`` reads as
+    an option change. Without ``settings``, the recordings alone: what an evaluation checks a
+    trained model against (an edited ``task.json`` does not make them other demonstrations)."""
     h = hashlib.sha256()
-    task = {k: v for k, v in demoset.task.to_dict().items() if k != "subsample"} if demoset.task else None
-    head = {"robot": demoset.robot.to_dict(), "task": task,
-            "joints": list(demoset.joint_names), "landmarks": list(demoset.landmark_names),
-            "demos": [[d.name, list(d.q.shape), float(d.dt)] for d in demoset.demos]}
+    head: dict = {"joints": list(demoset.joint_names), "landmarks": list(demoset.landmark_names),
+                  "demos": [[d.name, list(d.q.shape), float(d.dt)] for d in demoset.demos]}
+    if settings:
+        task = {k: v for k, v in demoset.task.to_dict().items() if k != "subsample"} if demoset.task else None
+        head.update(robot=demoset.robot.to_dict(), task=task)
     h.update(json.dumps(head, sort_keys=True).encode())
     for d in demoset.demos:
         h.update(np.ascontiguousarray(d.q, dtype=np.float64).tobytes())
@@ -180,7 +183,8 @@ class FitProgress:
     best_restart: int | None = None
     best_state: dict | None = field(default=None, compare=False)
     source: Path | None = field(default=None, compare=False)
-    elapsed_s: float = field(default=0.0, compare=False)  # the fit's wall time so far, every session's
+    elapsed_s: float = field(default=0.0, compare=False)  # the fit's wall time to this checkpoint, every session's
+    # (what a session spent on a restart an interruption cut is not counted)
 
     @property
     def restarts_done(self) -> int:

@@ -309,7 +309,7 @@ def restart_workers(workers: int | None, restarts: int) -> int:
 
 
 def _run_restarts(demoset, data: FitData, cfg: FitConfig, fixed, callback, dtype, device, on_restart,
-                  resume, fingerprint: str, workers: int | None = None, t0: float = 0.0) -> _RestartLog:
+                  resume, fingerprint: str, workers: int | None, t0: float) -> _RestartLog:
     """The EM from ``cfg.restarts`` initial guesses (those a resumed checkpoint finished are
     skipped, not repeated), ``workers`` at once in threads (see ``fit``); ``on_restart`` gets the
     progress after each, in restart order, with the fit's time since ``t0`` (``time.perf_counter``)
