@@ -265,7 +265,9 @@ def test_a_cancelled_pool_terminates_the_workers_of_jobs_in_flight(tmp_path):
     """Ctrl-C or SIGTERM in the driver cancels the pool (``run_jobs``' ``close(cancel=True)``):
     the workers still running a job were left running it (for nobody, 60 s here); now they end."""
     ex = LocalExecutor(2)
-    jobs = [Job(("quick",), (str(tmp_path), 0.0)), Job(("slow",), (str(tmp_path), 60.0))]
+    # after the quick job, each of the two workers runs a slow one (whichever ran the quick one)
+    jobs = [Job(("quick",), (str(tmp_path), 0.0)), Job(("slow", 1), (str(tmp_path), 60.0)),
+            Job(("slow", 2), (str(tmp_path), 60.0))]
     it = ex.run(sweep_fakes.sleeper, jobs)
     job, _, e = next(it)
     assert job.key == ("quick",) and e is None
