@@ -377,3 +377,16 @@ def test_load_demos_checks_its_arguments(good_dir, kin):
         with pytest.raises(ValueError, match=rf"^limit_tolerance must be a finite angle >= 0 \(rad\), got {bad!r}$"):
             load_demos(good_dir, kin=kin, limit_tolerance=bad)
     assert len(load_demos(good_dir, time_steps=np.int64(2), kin=kin, limit_tolerance=0).demos) == 2
+
+
+def test_a_sampling_interval_stored_in_single_precision_matches_its_task(good_dir):
+    """``np.float32(0.1)`` is 0.10000000149: recordings written in single precision were refused
+    against their own task.json (dt=0.1); a real difference is still refused."""
+    files = sorted(good_dir.glob("*.npz"))
+    dt = float(np.load(files[0])["dt"])
+    for f in files:
+        _rewrite(f, dt=np.float32(dt))
+    assert len(load_demos(good_dir).demos) == len(files)
+    _rewrite(files[0], dt=np.float64(dt * 1.001))
+    with pytest.raises(DemoFormatError, match="dt="):
+        load_demos(good_dir)

@@ -91,6 +91,30 @@ def test_random_alignment_is_monotone_and_complete(n):
         assert set(np.diff(a)) <= {0, 1, 2}
 
 
+def test_min_samples_is_the_fewest_transitions_that_sum_to_the_task_exactly():
+    """With a gap in the offsets the largest one does not fix the count: a 6-step task with
+    (0, 1, 3) needs 3 transitions (3 + 1 + 1; two give 4 or 6), which ``max(offsets)`` put at 2.
+    Checked against enumerating every sequence of transitions."""
+    for T, offsets in [(6, (0, 1, 3)), (8, (0, 1, 3)), (11, (0, 1, 4)), (24, (0, 1, 2)), (9, (0, 1, 2, 3)),
+                       (7, (0, 1))]:
+        steps = [k for k in offsets if k > 0]
+        fewest = next(n for n in range(1, T) if any(sum(c) == T - 1 for c in itertools.product(steps, repeat=n)))
+        assert min_samples(T, offsets) == 1 + fewest, (T, offsets)
+    with pytest.raises(ValueError, match="no sum of the offsets"):
+        min_samples(6, (0, 2))
+
+
+@pytest.mark.parametrize("T,offsets", [(8, (0, 1, 3)), (6, (0, 1, 3)), (11, (0, 1, 4)), (24, (0, 1, 2))])
+def test_random_alignment_of_a_short_demonstration_uses_only_the_permitted_offsets(T, offsets):
+    """Fewer samples than steps: each transition's step is one of the offsets, whatever they are
+    (skips larger than 2 raised from numpy's sampling, or gave steps the offsets forbid)."""
+    rng = np.random.default_rng(1)
+    for n in range(min_samples(T, offsets), T):
+        for _ in range(10):
+            a = random_alignment(n, T, rng, offsets)
+            assert len(a) == n and a[0] == 0 and a[-1] == T - 1 and set(np.diff(a)) <= set(offsets), (n, a)
+
+
 def test_transition_estimate_keeps_a_floor_and_forbids_leaving():
     a = [np.array([0, 0, 0, 1, 2, 3, 3]), np.array([0, 1, 1, 2, 3])]
     counts = alignment_step_counts(a, 4)

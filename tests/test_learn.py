@@ -1,5 +1,6 @@
 """The EM fit: objective pieces against references, and recovery of a known model."""
 
+import json
 import math
 import time
 from dataclasses import replace
@@ -241,6 +242,40 @@ def test_subsample_fits_every_kth_sample_at_k_times_dt(kin):
     need = min_samples(T_STEPS, cfg.offsets)  # 8 steps: 8 samples with (0, 1), 5 with (0, 1, 2)
     with pytest.raises(ValueError, match=rf"fewer than {need} samples after keeping 1 sample in 20 \(FitConfig.subsample\)"):
         fit(ds, kin, FitConfig(**{**cfg.__dict__, "subsample": 20}))
+
+
+@pytest.mark.parametrize("init", ["reference", "random", "linear"])
+def test_a_skip_of_three_fits_demonstrations_too_short_for_skips_of_two(kin, init):
+    """Offsets (0, 1, 3) and demonstrations of 4-5 samples for 8 steps (reachable only with skips
+    of 3): every start of every restart is an alignment the offsets permit. The random starts
+    raised from numpy's sampling, the linear one started with skips of 2 and found no alignment."""
+    torch.set_num_threads(1)
+    ds, _ = make_synthetic(kin, seed=3, std_scale=0.5, time_steps=T_STEPS, task=POWDER, samples_per_step=(6, 7))
+    res = fit(ds, kin, FitConfig(time_steps=T_STEPS, offsets=(0, 1, 3), restarts=2, init=init, subsample=13),
+              workers=1)  # every 13th sample: 4-5 of each demonstration
+    shortest = min(len(a) for a in res.alignments)
+    assert min_samples(T_STEPS, (0, 1, 3)) <= shortest < min_samples(T_STEPS, (0, 1, 2))
+    assert all(set(np.diff(a)) <= {0, 1, 3} and a[0] == 0 and a[-1] == T_STEPS - 1 for a in res.alignments)
+    assert all(math.isfinite(x) for x in res.restart_losses)
+
+
+def test_numpy_numbers_in_the_settings_are_stored_as_python_numbers_and_the_model_saves(kin, tmp_path):
+    """A sweep over ``np.arange`` seeds: the fit ran, then ``save`` and the checkpoint raised
+    (int64 is not JSON), leaving a model folder without its config.json. And a string for
+    ``volume_prior`` ('false' is truthy) was taken as True."""
+    torch.set_num_threads(1)
+    ds, _ = make_synthetic(kin, seed=5, std_scale=0.5, time_steps=T_STEPS, task=POWDER, samples_per_step=(3, 4))
+    cfg = FitConfig(time_steps=np.int64(T_STEPS), restarts=np.int64(1), seed=np.int64(3), floor_task=np.float32(1e-3),
+                    solver=SolverSettings(max_em_iters=np.int32(5), tool_search=np.float32(0.2)))
+    assert type(cfg.seed) is int and type(cfg.floor_task) is float and type(cfg.solver.max_em_iters) is int
+    from lfd.learning.checkpoint import config_record
+    json.dumps(config_record(cfg))  # what a checkpoint writes
+    res = fit(ds, kin, cfg, workers=1)
+    res.model.save(tmp_path / "m")
+    assert json.loads((tmp_path / "m" / "config.json").read_text())["options"]["seed"] == 3
+    with pytest.raises(TypeError, match="volume_prior must be True or False"):
+        FitConfig(volume_prior="false")
+    assert FitConfig(volume_prior=np.bool_(False)).volume_prior is False
 
 
 def test_resume_with_subsample_equals_an_uninterrupted_fit(kin):

@@ -74,8 +74,10 @@ def jumping_landmark(poses: np.ndarray, names: Sequence[str], dt: float | np.nda
 
 
 def same_interval(dt: float, dt0: float) -> bool:
-    """Whether two sampling intervals (s) are the same, but for rounding."""
-    return abs(dt - dt0) <= 1e-9 * max(1.0, dt0)
+    """Whether two sampling intervals (s) are the same, but for rounding: within one part in a
+    million, wider than float32's rounding (``np.float32(0.1)`` is 0.10000000149), so that an
+    interval stored in single precision matches its ``task.json``."""
+    return abs(dt - dt0) <= 1e-6 * max(abs(dt), abs(dt0))
 
 
 def other_task_dt(task_dt: float, dt: float) -> str | None:

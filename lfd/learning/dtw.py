@@ -39,9 +39,17 @@ __all__ = [
 
 
 def min_samples(time_steps: int, offsets=OFFSETS) -> int:
-    """Fewest samples that can run from the first to the last step."""
-    step = max(offsets)
-    return 1 + -(-(time_steps - 1) // step)
+    """Fewest samples that can run from the first to the last step: one more than the fewest
+    positive offsets that sum to ``time_steps - 1`` exactly (with ``(0, 1, 3)`` a 6-step task needs
+    3 transitions, 3 + 1 + 1, not 2); ``ValueError`` when no sum of them does."""
+    need = int(time_steps) - 1
+    steps = sorted({int(k) for k in offsets if k > 0})
+    fewest = [0] + [math.inf] * need  # fewest[v]: fewest positive offsets summing to v
+    for v in range(1, need + 1):
+        fewest[v] = 1 + min((fewest[v - k] for k in steps if k <= v), default=math.inf)
+    if not math.isfinite(fewest[need]):
+        raise ValueError(f"no sum of the offsets {tuple(offsets)} runs from step 0 to step {need}")
+    return 1 + int(fewest[need])
 
 
 def dwell_limits(lengths, time_steps: int, max_dwell: float | None) -> list[int] | None:
@@ -162,7 +170,8 @@ def dtw_align(cost: torch.Tensor, lengths, trans_cost: torch.Tensor, offsets=OFF
 def linear_alignment(n_samples: int, time_steps: int) -> np.ndarray:
     """The uniform time warp ``(n_samples,)``: sample s at step ``floor(s T / n)``, from 0 to T-1.
 
-    With fewer samples than steps, offsets of 2 appear where needed (see ``min_samples``).
+    With fewer samples than steps, it takes steps larger than 1 where needed and is not in general
+    permitted by a set of offsets: ``project_alignments`` makes it so.
     """
     return np.minimum((np.arange(n_samples) * time_steps) // max(n_samples, 1), time_steps - 1) \
         if n_samples >= time_steps else np.round(np.linspace(0, time_steps - 1, n_samples)).astype(np.int64)
@@ -175,7 +184,8 @@ def random_alignment(n_samples: int, time_steps: int, rng: np.random.Generator,
     Steps advance at ``time_steps - 1`` of the ``n_samples - 1`` transitions, drawn without
     replacement with probabilities from a random smooth warp (so pace varies along the
     demonstration); offsets stay in ``{0, 1}`` and are hence permitted whenever 0 and 1 are.
-    When there are fewer samples than steps, offsets of 2 are used as needed.
+    When there are fewer samples than steps, a random increasing warp is projected onto the
+    alignments ``offsets`` permit (``project_alignments``; any offsets, not only 2).
     """
     n_trans = n_samples - 1
     need = time_steps - 1
@@ -185,13 +195,11 @@ def random_alignment(n_samples: int, time_steps: int, rng: np.random.Generator,
         chosen = rng.choice(n_trans, size=need, replace=False, p=rate / rate.sum())
         inc = np.zeros(n_trans, dtype=np.int64)
         inc[chosen] = 1
-    else:
-        if max(offsets) * n_trans < need:
-            raise ValueError(f"{n_samples} samples cannot reach step {time_steps} with offsets {offsets}")
-        inc = np.ones(n_trans, dtype=np.int64)
-        extra = rng.choice(n_trans, size=need - n_trans, replace=False)
-        inc[extra] += 1
-    return np.concatenate([[0], np.cumsum(inc)])
+        return np.concatenate([[0], np.cumsum(inc)])
+    if n_samples < min_samples(time_steps, offsets):
+        raise ValueError(f"{n_samples} samples cannot reach step {time_steps} with offsets {offsets}")
+    warp = np.concatenate([[0.0], np.cumsum(rng.gamma(2.0, size=n_trans))])  # (n_samples,) increasing
+    return project_alignments([warp * need / warp[-1]], time_steps, offsets)[0]
 
 
 def reference_alignments(series, time_steps: int, ref: int, ref_alignment=None, offsets=OFFSETS,

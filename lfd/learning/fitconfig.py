@@ -34,12 +34,21 @@ FLOOR_LIMITS = {"floor_joint": 2 * math.pi, "floor_task": 10.0, "floor_attitude"
 
 def _check_numbers(obj, names) -> None:
     """``ValueError`` naming the first field of ``obj`` among ``names`` that is not a real number
-    (None passes: the fields that take it say what it means); a string gave Python's TypeError
-    from a comparison, naming no field."""
+    (None passes: the fields that take it say what it means; a string gave Python's TypeError
+    from a comparison, naming no field); each number is stored as a Python ``float``, so that a
+    NumPy scalar given for it is written to the model's and the checkpoint's JSON like any other."""
     for name in names:
         value = getattr(obj, name)
         if value is not None and not is_real(value):
             raise ValueError(f"{type(obj).__name__}.{name} must be a number, got {value!r}")
+        if value is not None:
+            object.__setattr__(obj, name, float(value))
+
+
+def _store_whole(obj, names, minimum: int) -> None:
+    """Each of ``obj``'s fields ``names`` checked (``check_whole``) and stored as a Python ``int``."""
+    for name in names:
+        object.__setattr__(obj, name, check_whole(getattr(obj, name), f"{type(obj).__name__}.{name}", minimum))
 
 
 class FitError(UserInputError):
@@ -83,8 +92,7 @@ class SolverSettings:
     def __post_init__(self):
         if self.m_step not in M_STEPS:
             raise ValueError(f"SolverSettings.m_step must be one of {', '.join(M_STEPS)}; got {self.m_step!r}")
-        for name in ("max_em_iters", "lbfgs_max_iter", "lbfgs_history", "joint_max_iter", "tool_grid"):
-            check_whole(getattr(self, name), f"SolverSettings.{name}", 1)
+        _store_whole(self, ("max_em_iters", "lbfgs_max_iter", "lbfgs_history", "joint_max_iter", "tool_grid"), 1)
         _check_numbers(self, ("em_tol", "lbfgs_tol_grad", "tool_init_std", "tool_search"))
         if not (self.em_tol >= 0 and self.lbfgs_tol_grad >= 0 and self.tool_init_std >= 0):
             raise ValueError("SolverSettings.em_tol, lbfgs_tol_grad and tool_init_std must be >= 0, got "
@@ -92,7 +100,7 @@ class SolverSettings:
         if not self.tool_search >= 0:  # NaN too
             raise ValueError(f"SolverSettings.tool_search must be >= 0, got {self.tool_search}")
         if self.num_threads is not None:
-            check_whole(self.num_threads, "SolverSettings.num_threads", 1)
+            _store_whole(self, ("num_threads",), 1)
 
 
 @dataclass(frozen=True)
@@ -227,8 +235,12 @@ class FitConfig:
         if self.max_dwell is not None and not (math.isfinite(self.max_dwell) and self.max_dwell >= 1):
             raise ValueError(f"FitConfig.max_dwell must be at least 1 (a demonstration's mean samples per "
                              f"step) or None (unlimited), got {self.max_dwell}")
-        if check_whole(self.seed, "FitConfig.seed", 0) >= 2**63:  # numpy and torch both take it
+        _store_whole(self, ("seed",), 0)
+        if self.seed >= 2**63:  # numpy and torch both take it
             raise ValueError(f"FitConfig.seed must be a whole number in [0, 2**63), got {self.seed!r}")
+        if not isinstance(self.volume_prior, (bool, np.bool_)):  # a string such as 'false' is truthy
+            raise TypeError(f"FitConfig.volume_prior must be True or False, got {self.volume_prior!r}")
+        object.__setattr__(self, "volume_prior", bool(self.volume_prior))
         object.__setattr__(self, "subsample", check_stride(self.subsample, "FitConfig.subsample"))
         if isinstance(self.offsets, (str, bytes)) or not len(self.offsets):
             raise ValueError(f"FitConfig.offsets must be a sequence of whole numbers, got {self.offsets!r}")

@@ -92,12 +92,11 @@ def initial_guesses(seed: int, lengths, time_steps: int, n_landmarks: int, cfg: 
                 ref = int(rng.integers(len(lengths)))
                 ref_align = random_alignment(lengths[ref], time_steps, rng, cfg.offsets)
             align = reference_alignments(series, time_steps, ref, ref_align, cfg.offsets, dwell=dwell)
-        elif r == 0 or cfg.init == "linear":  # the plain uniform time warp (random: first restart only)
-            align = [linear_alignment(n, time_steps) for n in lengths]
-        else:
-            align = [random_alignment(n, time_steps, rng, cfg.offsets) for n in lengths]
-            if dwell is not None:
-                align = project_alignments(align, time_steps, cfg.offsets, dwell)
+        else:  # the plain uniform time warp ('random': the first restart only), then random warps;
+            # projected onto what offsets and dwell permit (the warps are when permitted: unchanged)
+            align = [linear_alignment(n, time_steps) if r == 0 or cfg.init == "linear"
+                     else random_alignment(n, time_steps, rng, cfg.offsets) for n in lengths]
+            align = project_alignments(align, time_steps, cfg.offsets, dwell)
         if fixed_tool is not None:
             tool0 = np.asarray(fixed_tool, dtype=float)
         else:

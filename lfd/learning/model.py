@@ -46,6 +46,7 @@ __all__ = [
     "FEATURE_SETS",
     "FORMAT",
     "MAX_FEATURE",
+    "MODEL_DTYPES",
     "OFFSETS",
     "ModelFormatError",
     "TaskModel",
@@ -63,10 +64,19 @@ __all__ = [
 COVARIANCES = ("full", "block")
 FORMAT = "lfd-task-model/1"
 MAX_FEATURE = 1e3  # no feature's mean (rad, m) is larger in a model that was learned
+# what a model computes in: torch's linear algebra (Cholesky, inverses) refuses half precision,
+# and bfloat16's 8 bits of mantissa fail the model's own checks
+MODEL_DTYPES = (torch.float32, torch.float64)
 
 
 class ModelFormatError(UserInputError):
     """A model folder that is not an lfd task model (or a damaged one)."""
+
+
+def _check_dtype(dtype) -> None:
+    """``TypeError`` unless ``dtype`` is one of ``MODEL_DTYPES``."""
+    if not (isinstance(dtype, torch.dtype) and dtype in MODEL_DTYPES):
+        raise TypeError(f"a task model's dtype must be torch.float64 or torch.float32, got {dtype!r}")
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -226,8 +236,8 @@ class TaskModel:
         untrusted input: a damaged one must fail here, not deep inside a plan)."""
         for name in self._TENSORS:
             v = getattr(self, name)
-            if not isinstance(v, torch.Tensor) or not v.is_floating_point():
-                raise ValueError(f"TaskModel.{name} must be a real floating-point tensor, got "
+            if not isinstance(v, torch.Tensor) or v.dtype not in MODEL_DTYPES:
+                raise ValueError(f"TaskModel.{name} must be a float32 or float64 tensor, got "
                                  f"{v.dtype if isinstance(v, torch.Tensor) else type(v).__name__}")
         if self.mu.dim() != 2:
             raise ValueError(f"TaskModel.mu must have shape (T, F), got {tuple(self.mu.shape)}")
@@ -343,6 +353,8 @@ class TaskModel:
     def to(self, dtype: torch.dtype | None = None, device=None) -> TaskModel:
         """A copy with another dtype and/or device (the kinematic model follows)."""
         device = None if device is None else usable_device(device)
+        if dtype is not None:
+            _check_dtype(dtype)
         new = object.__new__(TaskModel)
         new.__dict__.update(self.__dict__)
         for k in self._TENSORS:
@@ -426,8 +438,7 @@ class TaskModel:
         ModelFormatError
             missing files, a ``config.json`` that is not ours, tensors of the wrong shape.
         """
-        if not (isinstance(dtype, torch.dtype) and dtype.is_floating_point):  # was reported as a damaged folder
-            raise TypeError(f"dtype must be a floating-point torch.dtype (torch.float64, torch.float32), got {dtype!r}")
+        _check_dtype(dtype)  # before the files are read: a dtype refused later was reported as a damaged folder
         device = usable_device(device)
         model_dir = Path(model_dir)
         cfg_path, pt_path = model_dir / "config.json", model_dir / "model.pt"
