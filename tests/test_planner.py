@@ -172,6 +172,22 @@ def test_random_problems_match_reference(seed):
         assert_path_valid(res, T=T)
 
 
+def test_edges_without_interior_nodes_plan_with_a_callable_cost_and_match_dijkstra():
+    """Every edge shorter than one node spacing (coarse ``quad_dt``): no edge has an interior
+    quadrature node, so the callable step cost is asked about no configuration. It raised from
+    ``prepare`` on zero rows (torch's reshape), at the build and at every later plan."""
+    rng = np.random.default_rng(7)
+    rm = Roadmap.build(lambda n: rng.uniform(-1, 1, (n, 2)), 60, in_box, segment_hits_box)
+    means, q0 = arc_means(T2), np.array([-0.7, 0.05])
+    p = make_planner(rm, means, quad_dt=10.0)  # 10 s of motion per node: m = 1 on every edge
+    assert int(np.max(p.edges.m)) == 1
+    res = p.plan(q0, 0)
+    assert res.ok and res.cost == pytest.approx(
+        reference_cost(rm, means, trans_table(T2), q0, 0, quad_dt=10.0), rel=1e-9, abs=1e-9)
+    rm.add_vertices(np.array([[0.6, 0.1], [0.62, 0.12]]))  # a growth whose new edges are all short
+    assert p.plan(q0, 0).ok
+
+
 def test_goal_configuration(toy):
     means = arc_means(T2)
     q0, qg = np.array([-0.7, 0.05]), np.array([0.7, 0.05])

@@ -337,9 +337,66 @@ def test_a_landmark_out_of_reach_gives_unreachable_then_ok_when_back(kin):
     n = planner.roadmap.n
     planner.update_landmarks(["bowl"], near)
     assert planner.plan(q0, 0).ok and planner.roadmap.n == n
+    # without growth (as a caller that grows later does): the verdict is the one remembered for
+    # the place, not the one of the place the bowl left (a bowl back in reach was 'unreachable')
+    planner.update_landmarks(["bowl"], far, grow=False)
+    assert planner.plan(q0, 0).status == "unreachable"
+    planner.update_landmarks(["bowl"], near, grow=False)
+    assert planner.plan(q0, 0).ok and planner.roadmap.n == n
 
 
-def test_unreachable_is_judged_even_when_the_roadmap_is_full(kin):
+@pytest.mark.parametrize("how", ["appears", "drifts"])
+def test_a_landmark_first_sensed_after_the_build_or_drifting_slowly_is_an_obstacle(kin, how):
+    """A vase put on the first plan's path: sensed for the first time after the build ('appears'),
+    or lowered onto it 4 mm per update from 1.2 m above ('drifts', each update under the 5 mm move
+    tolerance). The re-plan avoids it: edges checked free before were checked again. (Both gave
+    plans through the vase: a landmark without an earlier position, and each small step, were not
+    reported as a move.)"""
+    model = _tight_model(kin)
+    radius = 0.04
+    vase = {"at": None}
+
+    def hit(q):  # the vase's name when a keypoint of q (link origins, tool point) is within radius of it
+        if vase["at"] is None:
+            return ""
+        return "vase" if np.linalg.norm(planner.keypoints(np.asarray(q)[None])[0] - vase["at"], axis=1).min() < radius \
+            else ""
+
+    def seg(a, b):
+        return any(hit(a + (b - a) * s) for s in np.linspace(0, 1, 41))
+
+    planner = TaskPlanner(model, hit, seg, settings=TaskPlannerSettings(n_vertices=150, seed=0))
+    bowl = np.eye(4)
+    bowl[:3, 3] = [0.7, 0.4, -0.1]
+    q0 = model.mu[0, :7].numpy()
+
+    def sense(at):
+        vase["at"] = at
+        pose = np.eye(4)
+        pose[:3, 3] = at
+        planner.update_landmarks(["bowl", "vase"], np.stack([bowl, pose]), grow=False)
+
+    if how == "appears":
+        planner.update_landmarks(["bowl"], bowl[None])
+    else:
+        sense(np.array([3.0, 3.0, 3.0]))  # sensed at the build, far away
+    first = planner.plan(q0, 0)
+    P = first.configurations
+    moving = [i for i in range(1, len(P) - 1) if first.vertices[i] >= 0 and first.vertices[i + 1] >= 0
+              and np.abs(P[i + 1] - P[i]).max() > 0]  # the roadmap edges the plan moves along
+    e = moving[len(moving) // 2]  # one mid-path (the first ones pass near the start, checked afresh)
+    target = planner.keypoints(((P[e] + P[e + 1]) / 2)[None])[0, -1]  # its tool point half way
+    if how == "appears":
+        sense(target)
+    else:
+        for h in np.arange(1.2, -1e-9, -0.004):
+            sense(target + [0.0, 0.0, h])
+    assert not hit(q0) and seg(P[e], P[e + 1])  # the vase stands on the first plan's path
+    res = planner.plan(q0, 0)
+    assert res.ok
+    C = res.configurations
+    assert not any(seg(a, b) for a, b in zip(C[:-1], C[1:]))
+
     """At the vertex cap no biased vertices are added, but a few IK-only executions still tell
     an out-of-reach landmark from a reachable one."""
     model = _tight_model(kin)

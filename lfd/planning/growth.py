@@ -86,6 +86,22 @@ class BiasedGrowth:
         return not len(self._unreachable) or reaches_last_step(
             self.model.log_trans.detach().cpu().numpy(), self.model.offsets, self._unreachable, int(t_current))
 
+    def recall(self, landmarks: torch.Tensor) -> None:
+        """The verdict for ``landmarks (Z, 4, 4)`` before any growth for their place: the pending
+        growth's so far when it is for that place, the remembered one when the roadmap was grown
+        near there, else none (not known until grown; the search decides meanwhile). The verdict
+        of the place the landmarks left would refuse a place in reach, or pass one out of it."""
+        pos = landmarks[:, :3, 3].cpu().numpy()
+        near = self.settings.regrow_distance
+        g = self._growth
+        if g is not None and np.abs(pos - g.pos).max() <= near:
+            self._unreachable = self._verdict(g.reached)
+            return
+        dist = [np.abs(pos - p).max() for p, _ in self._grown_for]
+        nearest = int(np.argmin(dist)) if dist else -1
+        self._unreachable = (self._grown_for[nearest][1] if dist and dist[nearest] <= near
+                             else np.zeros(0, dtype=int))
+
     def initial(self, rm: Roadmap, landmarks: torch.Tensor, n: int) -> None:
         """Every round of a growth of about ``n`` vertices for ``landmarks (Z, 4, 4)`` (the roadmap's
         build), and its verdict."""
@@ -158,6 +174,8 @@ class BiasedGrowth:
         g.reached |= reached.reshape(-1, steps).any(0)
         free = valid.copy()
         free[valid] = rm.free_or_set_aside(Q[valid])
+        free[np.flatnonzero(free)[max(0, self.room(rm)):]] = False  # never past max_vertices (readmitted
+        # vertices may have taken room since the growth's budget was set)
         ids = np.full(len(Q), -1)
         ids[free] = rm.add_vertices(Q[free], check=False)
         rm.add_edges(ids[chain_edges(free, steps)])

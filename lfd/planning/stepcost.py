@@ -248,10 +248,13 @@ class CallableStepCost:
             raise ValueError(f"floor must be finite, got {floor!r}")
 
     def prepare(self, Q) -> tuple[torch.Tensor]:
-        return (torch.as_tensor(np.array(Q, dtype=float)).reshape(len(Q), -1),)
+        Q = np.array(Q, dtype=float)
+        return (torch.as_tensor(Q if Q.ndim == 2 else Q.reshape(len(Q), -1)),)  # (N, d); N may be 0
 
     def evaluate(self, parts, landmarks) -> np.ndarray:
         (Q,) = parts
+        if len(Q) == 0:  # no configuration (edges without interior nodes): the callable is not asked
+            return np.zeros((0, self.T))
         out = _checked(self.factory(landmarks)(Q), len(Q), self.T, "step_nll") - self.floor
         if (out < -1e-9 * np.maximum(1.0, np.abs(self.floor))).any():
             raise CostError(f"step_nll went below its floor by {-out.min():.3g}: floor is not a lower bound")

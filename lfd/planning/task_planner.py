@@ -54,7 +54,9 @@ from lfd.planning.stepcost import FK_BATCH, ModelStepCost
 from lfd.planning.task_settings import GROWTH_CAP, TaskPlannerSettings, default_vertices
 from lfd.robot.se3 import not_rigid
 
-__all__ = ["TaskPlanner", "TaskPlannerSettings"]  # the settings live in lfd.planning.task_settings
+__all__ = ["MOVE_TOLERANCE", "TaskPlanner", "TaskPlannerSettings"]  # the settings live in lfd.planning.task_settings
+
+MOVE_TOLERANCE = 0.005  # m: a sensed landmark this far from where the planner last accounted for it has moved
 
 def _time_base(model: TaskModel, dt: float | None) -> float:
     """The model's seconds per sample: its task's, or ``dt`` for a model without one."""
@@ -121,7 +123,10 @@ class TaskPlanner:
         self.collision_fn, self.segment_fn = collision_fn, segment_fn
         self.batch_collision_fn = batch_collision_fn
         self._landmarks: torch.Tensor | None = None  # (Z, 4, 4) kept landmarks, model order
-        self._sensed: dict[str, np.ndarray] = {}  # every sensed landmark's last position (3,)
+        # every sensed landmark's position (3,) as the planner last accounted for it (first sensed, or
+        # last reported as moved): a landmark that drifts a little per update is reported once its
+        # drift adds up to MOVE_TOLERANCE
+        self._sensed: dict[str, np.ndarray] = {}
         self._vacated: set[str] = set()  # landmarks that moved since the last growth (``Roadmap.readmit``)
         self.growth_pending = False
         self._n_bias = int(round(settings.bias_fraction * self.n_vertices))  # the build's biased vertices
@@ -175,9 +180,12 @@ class TaskPlanner:
     def update_landmarks(self, names, T_world_landmarks, grow: bool = True) -> None:
         """New sensed landmarks ``names (Z_all,)``, ``(Z_all, 4, 4)``; builds the roadmap on first use.
 
-        Every landmark that moved (more than 5 mm) counts as a moved obstacle: edges near its old
-        and new place are checked again. With ``grow=False`` a far move of the task landmarks
-        only sets ``growth_pending``; ``grow()`` adds the biased vertices later."""
+        Every landmark that moved (more than ``MOVE_TOLERANCE`` from where the planner last
+        accounted for it, however many updates it took) counts as a moved obstacle, and one first
+        sensed after the build as one that appeared: edges near its old and new place are checked
+        again. With ``grow=False`` a far move of the task landmarks only sets ``growth_pending``
+        (the reachability verdict is the one remembered for the new place, none for a place not
+        grown for yet); ``grow()`` adds the biased vertices later."""
         names = [str(n) for n in names]
         twice = sorted({n for n in names if names.count(n) > 1})
         if twice:  # the first pose was used and the second ignored
@@ -209,21 +217,24 @@ class TaskPlanner:
             self._build()
         else:
             self.growth_pending = True
+            self._growth.recall(lm)
             if grow:
                 self.grow()
         assert self.planner is not None  # built above
         self.planner.update_landmarks(lm)
 
     def _invalidate_moved(self, names: list[str], poses: np.ndarray) -> None:
+        """Report to the planner every landmark that moved or appeared since it last accounted for it."""
         for name, T in zip(names, poses):
             pos = T[:3, 3]
             old = self._sensed.get(name)
-            if self.planner is not None and old is not None and np.all(np.isfinite(pos)) \
-                    and np.linalg.norm(pos - old) > 0.005:
+            if not np.all(np.isfinite(pos)) or (old is not None and np.linalg.norm(pos - old) <= MOVE_TOLERANCE):
+                continue  # not sensed now, or still where the planner's edge states saw it
+            if self.planner is not None:  # (before the build, the build sees it where it is)
                 self._invalidated_edges += self.planner.object_moved(old, pos, self.settings.object_radius, name)
-                self._vacated.add(name)
-            if np.all(np.isfinite(pos)):
-                self._sensed[name] = pos.copy()
+                if old is not None:
+                    self._vacated.add(name)
+            self._sensed[name] = pos.copy()
         if self.roadmap is not None:
             self.roadmap.set_movable(self._sensed)
 
