@@ -104,6 +104,9 @@ def plan_segments(configurations: np.ndarray, time_steps: np.ndarray, vmax: np.n
     motion included; ``elapsed`` is the time already spent in the first step (a plan made
     mid-step, after a re-plan). ``time_step`` is the task time step during the segment.
     """
+    vmax = np.asarray(vmax, dtype=float)
+    if not np.all(vmax > 0):  # 0 made 0/0: a NaN duration dropped the segment, the arm jumped
+        raise ValueError(f"vmax must be positive joint velocity limits, got {vmax.tolist()}")
     segs = []
     spent = float(elapsed)
     for i in range(len(configurations) - 1):

@@ -246,14 +246,16 @@ def main(argv=None, prog: str = PROG) -> int:
                 return e.exit_status
     finally:
         if not keep and created is not None:  # no empty or half-written folder of ours is left
-            _remove_created(Path(os.path.abspath(out)), created)
+            _remove_created(Path(os.path.abspath(out)), created,
+                            Path(os.path.abspath(args.demos or default_demos(args.task))))
 
 
-def _remove_created(out: Path, created: Path) -> None:
+def _remove_created(out: Path, created: Path, demos: Path) -> None:
     """Remove ``out`` and then each folder above it up to ``created`` (the outermost one this run
     made) while it is empty: what else was written there meanwhile (demonstrations generated
-    into ``runs/demos`` when ``created`` is ``runs``) stays."""
-    shutil.rmtree(out, ignore_errors=True)
+    into ``runs/demos`` when ``created`` is ``runs``) stays, and so does the ``demos`` folder
+    when it lies inside ``out`` (``--out runs``: generated into ``runs/demos/<task>``)."""
+    _remove_but(out, demos)
     for p in out.parents:
         if not p.is_relative_to(created):
             break
@@ -261,6 +263,22 @@ def _remove_created(out: Path, created: Path) -> None:
             p.rmdir()  # only when empty
         except OSError:
             break
+
+
+def _remove_but(path: Path, keep: Path) -> None:
+    """Remove ``path`` (a folder) with everything in it, except ``keep`` and the folders leading to it."""
+    if not keep.is_relative_to(path):
+        shutil.rmtree(path, ignore_errors=True)
+        return
+    if keep == path:
+        return
+    for child in path.iterdir():
+        if keep.is_relative_to(child):
+            _remove_but(child, keep)
+        elif child.is_dir() and not child.is_symlink():
+            shutil.rmtree(child, ignore_errors=True)
+        else:
+            child.unlink(missing_ok=True)
 
 
 def cli() -> None:

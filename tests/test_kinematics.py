@@ -225,9 +225,68 @@ def test_a_joint_that_turns_without_limits_is_sampled_over_one_turn(tmp_path):
     assert np.all(np.isfinite(Q))
     assert Q[:, 1].min() < -3.1 and Q[:, 1].max() > 3.1 and np.all(np.abs(Q[:, 1]) <= np.pi)
     assert np.all(np.abs(Q[:, [0, 2]]) <= 2.0) and np.abs(Q[:, [0, 2]]).max() > 1.99
-    half = KinematicModel.from_spec(arm3(tmp_path, "revolute", '<limit upper="1" velocity="1.0" effort="10"/>'))
-    Q = half.sample_uniform(500, generator=torch.Generator().manual_seed(0)).numpy()  # one turn below its one limit
-    assert Q[:, 1].max() <= 1.0 and Q[:, 1].min() >= 1.0 - 2 * np.pi and Q[:, 1].min() < 1.0 - 6.0
-    slides = KinematicModel.from_spec(arm3(tmp_path, "prismatic", '<limit velocity="0.5" effort="10"/>'))
+    free = KinematicModel.from_spec(arm3(tmp_path, "revolute", ""))  # no <limit> at all (the spec wants one)
+    Q = free.sample_uniform(500, generator=torch.Generator().manual_seed(0)).numpy()  # one turn
+    assert np.all(np.abs(Q[:, 1]) <= np.pi) and np.abs(Q[:, 1]).max() > 3.1
+    slides = KinematicModel.from_spec(arm3(tmp_path, "prismatic", ""))
     with pytest.raises(KinematicsError, match=r"joint\(s\) \['j2'\] slide without limits .*pass your own sample_fn"):
         slides.sample_uniform(3)
+
+
+def _pybullet_joint(urdf_path, q: float):
+    """PyBullet's reading of a one-joint URDF: its limits and the end link's position at ``q``."""
+    client = p.connect(p.DIRECT)
+    try:
+        robot = p.loadURDF(str(urdf_path), useFixedBase=True, physicsClientId=client)
+        info = p.getJointInfo(robot, 0, physicsClientId=client)
+        p.resetJointState(robot, 0, q, physicsClientId=client)
+        pos = p.getLinkState(robot, 1, computeForwardKinematics=True, physicsClientId=client)[4]
+        return (info[8], info[9]), np.array(pos)
+    finally:
+        p.disconnect(client)
+
+
+@pytest.mark.parametrize("joint,expect_limits,same_in_pybullet", [
+    ('<joint name="j" type="revolute"><parent link="base"/><child link="l1"/>'
+     '<limit upper="1" velocity="1" effort="1"/></joint>', (0.0, 1.0), True),  # no <axis>: x; no lower: 0
+    ('<joint name="j" type="revolute"><parent link="base"/><child link="l1"/><axis xyz="0 1 0"/>'
+     '<limit lower="-0.5" velocity="1" effort="1"/></joint>', (-0.5, 0.0), False),  # (PyBullet: upper -1, unlimited)
+    ('<joint name="j" type="continuous"><parent link="base"/><child link="l1"/><axis xyz="1 0 0"/>'
+     '<limit lower="-1" upper="1" velocity="1" effort="1"/></joint>', (-np.inf, np.inf), False),  # ignored
+])
+def test_the_urdf_defaults_are_read_as_the_specification_says(tmp_path, joint, expect_limits, same_in_pybullet):
+    """A joint without ``<axis>`` turns about x (the URDF's default, and PyBullet's; pytorch-kinematics'
+    own is z, and lfd's FK put the end link 0.5 m up where PyBullet has it at (0, -0.42, 0.27)); a
+    missing ``lower`` or ``upper`` of a revolute joint is 0, as urdfdom reads it (lfd had one turn
+    below the other limit: 6 rad past what PyBullet allows with ``upper`` alone); a continuous
+    joint has no position limits."""
+    path = tmp_path / "one.urdf"
+    path.write_text('<?xml version="1.0"?><robot name="one"><link name="base"/><link name="l1"/><link name="ee"/>'
+                    + joint + '<joint name="f" type="fixed"><parent link="l1"/><child link="ee"/>'
+                    '<origin xyz="0 0 0.5"/></joint></robot>')
+    kin = KinematicModel(path, "ee")
+    assert (float(kin.lower[0]), float(kin.upper[0])) == expect_limits
+    for q in (0.7, -0.4):
+        pb_limits, pb_pos = _pybullet_joint(path, q)
+        assert np.abs(kin.fk(torch.tensor([q], dtype=torch.float64))[:3, 3].numpy() - pb_pos).max() < 1e-6
+    if same_in_pybullet:
+        assert pb_limits == pytest.approx(expect_limits)
+
+
+def test_a_mimic_joint_on_the_chain_and_a_velocity_of_zero_are_not_taken_as_they_are(tmp_path):
+    """A joint that mimics another was an independent joint (sampled, solved for and planned on
+    its own, breaking the linkage): refused by name. ``velocity="0"`` (CAD exporters) is no
+    velocity limit (plan timing divided by it: edges were dropped), which the planner refuses."""
+    mimic = tmp_path / "mimic.urdf"
+    mimic.write_text(
+        '<?xml version="1.0"?><robot name="m"><link name="base"/><link name="l1"/><link name="l2"/>'
+        '<joint name="j1" type="revolute"><parent link="base"/><child link="l1"/><axis xyz="0 0 1"/>'
+        '<limit lower="-1" upper="1" velocity="1" effort="1"/></joint>'
+        '<joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/><origin xyz="0.5 0 0"/>'
+        '<axis xyz="0 0 1"/><limit lower="-3" upper="3" velocity="1" effort="1"/>'
+        '<mimic joint="j1" multiplier="2" offset="0.1"/></joint></robot>')
+    with pytest.raises(KinematicsError, match=r"mimic joint\(s\) j2 \(follows 'j1'\)"):
+        KinematicModel(mimic, "l2")
+    assert KinematicModel(mimic, "l1").joint_names == ("j1",)  # a chain that stops before it
+    kin = KinematicModel.from_spec(arm3(tmp_path, "revolute", '<limit lower="-1" upper="1" velocity="0" effort="1"/>'))
+    assert kin.velocity[1] == np.inf and kin.velocity[0] == 1.5

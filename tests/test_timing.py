@@ -101,6 +101,9 @@ def test_plan_segments_respect_velocity_limits_and_pace():
     assert resumed[1][2] == pytest.approx(0.7 - move0[2])           # a re-plan made 0.3 s into step 0
     late = plan_segments(Q, steps, VMAX, dt=0.1, speed=0.5, clock=clock, elapsed=5.0)
     assert late[1][2] == pytest.approx(0.1)                          # overdue: one interval
+    for bad in (0.0, -1.0, np.nan):  # a zero limit made 0/0: the segment was dropped, the arm jumped
+        with pytest.raises(ValueError, match="vmax must be positive"):
+            plan_segments(Q, steps, np.r_[VMAX[:-1], bad], dt=0.1, speed=0.5)
 
 
 def test_min_jerk_segments_respect_speed_and_acceleration_limits():

@@ -561,6 +561,29 @@ def test_failed_train_keeps_what_else_was_written_into_the_folders_it_created(sy
     assert not (tmp_path / "runs" / "powder").exists()
 
 
+def test_failed_train_keeps_demonstrations_generated_inside_its_out(synth_dir, tmp_path, monkeypatch):
+    """``--out runs`` in a fresh folder: the default demonstrations are generated into
+    ``runs/demos/powder``, inside ``--out``; a failed fit removed all of ``runs/`` with them."""
+    import lfd.learning.learn
+    import lfd.train_cli
+    import train
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(lfd.train_cli, "ensure_demos",  # the simulator's generator, stood in for by a copy
+                        lambda task, demos_dir, seed: shutil.copytree(synth_dir, demos_dir, dirs_exist_ok=True))
+
+    def broken_fit(*args, **kwargs):
+        (tmp_path / "runs" / "half_written.pt").write_bytes(b"")
+        raise RuntimeError("a bug in the fit")
+
+    monkeypatch.setattr(lfd.learning.learn, "fit", broken_fit)
+    with pytest.raises(RuntimeError, match="a bug in the fit"):
+        train.main(["--task", "powder", "--restarts", "1", "--time-steps", "5", "--out", "runs"])
+    kept = sorted(p.relative_to(tmp_path).as_posix() for p in (tmp_path / "runs").rglob("*"))
+    assert kept == ["runs/demos", "runs/demos/powder",
+                    *sorted(f"runs/demos/powder/{p.name}" for p in Path(synth_dir).iterdir())], kept
+
+
 def test_quiet_cwd_default_out_and_no_tensorboard(synth_dir, tmp_path, monkeypatch, capsys):
     """--quiet drops the per-iteration lines; without --out the model goes to ./runs/<task> in the
     current working directory; without TensorBoard one warning says so and the run goes on."""

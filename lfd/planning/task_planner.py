@@ -103,7 +103,7 @@ class TaskPlanner:
         self.kin = model.kin
         untimed = [n for n, v in zip(self.kin.joint_names, self.kin.velocity.tolist()) if not math.isfinite(v)]
         if untimed:  # its motions would take no time, so the edge costs would not weigh them
-            raise ValueError(f"joint(s) {untimed} have no velocity limit in {self.kin.urdf_path.name}: the planner "
+            raise ValueError(f"joint(s) {untimed} have no velocity limit (absent, or 0) in {self.kin.urdf_path.name}: the planner "
                              "times each motion by the joints' velocity limits (the edge costs of Sec. V); give "
                              "them <limit velocity=...>")
         self._gen = torch.Generator().manual_seed(settings.seed)

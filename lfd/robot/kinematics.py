@@ -29,6 +29,9 @@ class KinematicsError(UserInputError):
     """A robot description or an input to the kinematics that cannot be used."""
 
 
+MOVABLE = ("revolute", "continuous", "prismatic")  # the joint types a chain's configuration holds
+
+
 def _kinematic_urdf(root: ET.Element) -> bytes:
     """The robot description with only what forward kinematics reads: its joints (without their
     dynamics), its links by name (their visuals, collisions and inertia dropped), nothing else (transmissions,
@@ -41,6 +44,8 @@ def _kinematic_urdf(root: ET.Element) -> bytes:
             joint = copy.deepcopy(child)
             for dyn in joint.findall("dynamics"):  # (the Panda's mu_coulomb: "Unknown attribute", per joint)
                 joint.remove(dyn)
+            if joint.get("type") in MOVABLE and joint.find("axis") is None:  # the URDF's default axis, x;
+                ET.SubElement(joint, "axis", {"xyz": "1 0 0"})  # pytorch-kinematics' own default is z
             out.append(joint)
         elif child.tag == "link":
             ET.SubElement(out, "link", child.attrib)
@@ -60,7 +65,13 @@ def _three_finite(text: str, what: str) -> list[float]:
 
 def _joint_table(urdf_text: str) -> dict[str, dict]:
     """Per joint of the URDF (the robot's own ``<joint>`` elements, not the ones a ROS
-    ``<transmission>`` names): type, lower, upper, velocity (None when absent).
+    ``<transmission>`` names): type, lower, upper, velocity (None when absent), mimic (the name of
+    the joint it follows, or None).
+
+    As the URDF specification (and urdfdom, and PyBullet) reads them: a ``revolute`` or
+    ``prismatic`` joint's missing ``lower`` or ``upper`` is 0; a ``continuous`` joint has no
+    position limits, whatever its ``<limit>`` says; a velocity of 0 or less is no velocity limit
+    (CAD exporters write ``velocity="0"``; the planner refuses a joint without one).
 
     Raises ``KinematicsError`` for a repeated joint name, a limit that is not a number, or NaN,
     an origin or axis that is not three finite numbers, a zero axis; ``ET.ParseError`` for text
@@ -72,7 +83,8 @@ def _joint_table(urdf_text: str) -> dict[str, dict]:
         if name in table:
             raise KinematicsError(f"the URDF defines joint {name!r} twice")
         lim = j.find("limit")
-        row: dict = {"type": j.get("type")}
+        mimic = j.find("mimic")
+        row: dict = {"type": j.get("type"), "mimic": None if mimic is None else mimic.get("joint", "")}
         for k in ("lower", "upper", "velocity"):
             text = lim.get(k) if lim is not None else None
             try:
@@ -81,6 +93,13 @@ def _joint_table(urdf_text: str) -> dict[str, dict]:
                 raise KinematicsError(f"joint {name!r}: limit {k}={text!r} is not a number") from None
             if row[k] is not None and math.isnan(row[k]):
                 raise KinematicsError(f"joint {name!r}: limit {k} is NaN")
+        if row["type"] == "continuous":
+            row["lower"] = row["upper"] = None
+        elif row["type"] in ("revolute", "prismatic") and lim is not None:
+            row["lower"] = 0.0 if row["lower"] is None else row["lower"]
+            row["upper"] = 0.0 if row["upper"] is None else row["upper"]
+        if row["velocity"] is not None and not row["velocity"] > 0:
+            row["velocity"] = None
         if row["lower"] is not None and row["upper"] is not None and row["lower"] > row["upper"]:
             raise KinematicsError(f"joint {name!r}: lower limit {row['lower']} is above upper {row['upper']}")
         origin = j.find("origin")
@@ -90,7 +109,7 @@ def _joint_table(urdf_text: str) -> dict[str, dict]:
                 _three_finite(text, f"joint {name!r}: origin {key}={text!r}")
         axis = j.find("axis")
         xyz = axis.get("xyz") if axis is not None else None
-        if xyz is not None and row["type"] in ("revolute", "continuous", "prismatic") \
+        if xyz is not None and row["type"] in MOVABLE \
                 and not any(_three_finite(xyz, f"joint {name!r}: axis {xyz!r}")):
             raise KinematicsError(f"joint {name!r}: its axis is zero")
         table[name] = row
@@ -151,6 +170,10 @@ class KinematicModel:
         except Exception as e:  # pytorch-kinematics raises bare exceptions for bad chains
             raise KinematicsError(f"cannot build a chain to {end_link!r} from {urdf_path}: {e}") from e
         chain_joints = list(chain.get_joint_parameter_names())
+        mimics = [f"{n} (follows {joints[n]['mimic']!r})" for n in chain_joints if joints.get(n, {}).get("mimic")]
+        if mimics:  # each would be a joint of its own: sampled, solved for and planned apart from its leader
+            raise KinematicsError(f"the chain to {end_link!r} has mimic joint(s) {', '.join(mimics)}, which lfd's "
+                                  "kinematics do not model; give a URDF whose chain has only independent joints")
         if joint_names is None:
             joint_names = chain_joints
         joint_names = tuple(joint_names)
