@@ -241,8 +241,10 @@ class _ClosedLoop:
             if move_step is not None and self.follow.step_at(self.follow.position) >= move_step:
                 world.move_object("bowl", self.scenario.bowl_after)  # the world's event, busy planner or not
                 move_step = None
-            if self.pending is None and self.step >= self.busy_until:  # the planner is free to sense
-                self._sense()
+            if self.step >= self.busy_until and (self.pending is None or self.step >= self.pending["arrive"]):
+                # the planner is free: it senses (a plan that arrived and waits for the arm to reach its
+                # start leaves it free too, then for moves alone: a move in that window was unseen)
+                self._sense(moves_only=self.pending is not None)
         settle_and_judge(world, self.contacts, result, s, self.step, self.frames)
         return result
 
@@ -317,13 +319,14 @@ class _ClosedLoop:
         self.result.switches += 1
         return self.follow.done
 
-    def _sense(self) -> None:
+    def _sense(self, moves_only: bool = False) -> None:
         """Read the landmarks: one that moved asks for a plan (with re-plans used up, only the
         plan being followed is checked); otherwise, while the roadmap still grows for a far move,
         a growth round and a better plan (anytime); with neither, an arm held before a blocked
         segment stops for good (``stopped``). While the arm is held, growth rounds that add no
         vertex count against ``max_replans`` too, so that a growth that never ends cannot hold
-        it forever."""
+        it forever. ``moves_only``: a plan has arrived and waits for the arm to reach its start:
+        only a move is acted on (its re-plan replaces the waiting plan)."""
         s, result = self.s, self.result
         held = self._holding()
         names, poses = self.world.sensed_landmarks()
@@ -333,6 +336,8 @@ class _ClosedLoop:
         if moved:
             self.planned_at = now
         can_replan = result.n_replans + self.idle_held < s.max_replans
+        if moves_only and not moved:
+            return
         if moved and can_replan:
             self._replan("move", names, poses)
         elif moved:
@@ -412,7 +417,12 @@ class _ClosedLoop:
         blocked = self._first_blocked(follow.position, pos)
         if blocked is None:
             return pos, False
-        told = follow.predict(charged_s(self.s.latency, time.perf_counter() - tic))  # where the news finds it
+        charged = charged_s(self.s.latency, time.perf_counter() - tic)
+        told = follow.predict(charged)  # where the news finds it, had it moved on meanwhile
+        if self.stop_at is not None and (self.release_at is None
+                                         or self.release_at >= self.step + int(round(charged / L.SIM_DT))):
+            told = min(told, self.stop_at)  # it holds there until the news arrives (a second move's check
+            # put the stop past a hold before a blocked segment, into the segment)
         return min(max(blocked, told), pos), True
 
     def _check_only(self) -> None:

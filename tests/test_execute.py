@@ -344,3 +344,68 @@ def test_a_distractor_moved_onto_the_path_asks_for_a_plan_and_is_not_hit(make_wo
     base.move_object("vase", vase)
     assert result.n_replans >= 1 and result.plan_statuses[1] == "ok", result.plan_statuses
     assert result.contacts == [], result.contacts
+
+
+class _Events(_CountingWorld):
+    """The real world, where objects move at given physics steps: ``events`` ``[(step, name, xy)]``."""
+
+    def __init__(self, world, events):
+        super().__init__(world)
+        self.events = sorted(events)
+
+    def step(self, n=1):
+        for _ in range(int(n)):
+            super().step(1)
+            while self.events and self.steps >= self.events[0][0]:
+                _, name, where = self.events.pop(0)
+                self._world.move_object(name, where)
+
+
+def test_a_second_move_with_re_plans_used_up_keeps_the_stop_before_the_blocked_segment(blocked_scene):
+    """``max_replans=0`` and a fixed latency of 0.8 s: the bowl moves onto B and the check stops
+    the arm at A2, before the segment that collides. A marker then moves 5 cm (unrelated): its
+    check used to put the stop where the robot would be had it moved on (0.8 s later), 71% into
+    A2 -> B and into the bowl. Now the stop stays at A2."""
+    from sim.scenarios import Scenario
+
+    world, fns, A, B, bowl_at_B, bowl = blocked_scene
+    A2 = A + [0, 0.1, 0.1, 0, 0, 0, 0]
+    marker = world.object_pose("marker_1")[:3, 3]
+    sc = Scenario(task="powder", seed=0, placements={}, bowl_after=bowl_at_B, move_at=0.25)  # step 6: A -> A2
+    s = ExecSettings(latency=0.8, pace="fastest", settle_s=0.0, max_replans=0)
+    kin = KinematicModel.from_spec()
+    first = _CountingWorld(world)
+    execute_plan(first, _BlockedAheadPlanner(first, kin, [L.HOME_Q, A, A2, B, L.HOME_Q], fns), sc, s)
+    world.move_object("bowl", bowl)
+    world.set_q(L.HOME_Q)
+    twice = _Events(world, [(first.moves[0][1] + 48, "marker_1", tuple(marker[:2] + [0.05, 0.0]))])
+    result = execute_plan(twice, _BlockedAheadPlanner(twice, kin, [L.HOME_Q, A, A2, B, L.HOME_Q], fns), sc, s)
+    q_end = world.get_q()
+    world.move_object("bowl", bowl)
+    world.move_object("marker_1", tuple(marker[:2]))
+    assert len(result.path_check_ms) == 2 and result.n_replans == 0  # both moves checked the plan
+    assert result.contacts == [] and "used up" in result.stopped, (result.contacts, result.stopped)
+    assert np.abs(q_end - A2).max() < 0.03, q_end - A2
+
+
+def test_a_move_while_an_arrived_plan_waits_for_the_arm_is_seen(blocked_scene):
+    """A marker moves as the arm leaves A for B, and its re-plan (from B, the next waypoint)
+    arrives at once; the arm drives on to reach its start. The bowl then moves onto B: nothing
+    was sensed while the arrived plan waited for the arm, which drove into the bowl. Now the
+    planner, free, senses the move, and the arm stops short of the bowl."""
+    world, fns, A, B, bowl_at_B, bowl = blocked_scene
+    marker = world.object_pose("marker_1")[:3, 3]
+    kin = KinematicModel.from_spec()
+    s = ExecSettings(latency="none", pace="fastest", settle_s=0.0)
+    commands = _Commands(world)
+    commands.after_move = []  # every command, from the start
+    dry = _CountingWorld(commands)
+    execute_plan(dry, _BlockedAheadPlanner(dry, kin, [L.HOME_Q, A, B, L.HOME_Q], fns), settings=s)
+    leaves_A = next(k for k, q in enumerate(commands.after_move) if abs(q[2] - A[2]) > 0.04)  # one command a step
+    world.set_q(L.HOME_Q)
+    events = [(leaves_A, "marker_1", tuple(marker[:2] + [0.05, 0.0])), (leaves_A + 36, "bowl", bowl_at_B)]
+    w = _Events(world, events)
+    result = execute_plan(w, _BlockedAheadPlanner(w, kin, [L.HOME_Q, A, B, L.HOME_Q], fns), settings=s)
+    world.move_object("bowl", bowl)
+    world.move_object("marker_1", tuple(marker[:2]))
+    assert result.n_replans == 2 and result.contacts == [], (result.replan_steps, result.contacts)
