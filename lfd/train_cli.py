@@ -267,6 +267,8 @@ def _remove_created(out: Path, created: Path, demos: Path) -> None:
 
 def _remove_but(path: Path, keep: Path) -> None:
     """Remove ``path`` (a folder) with everything in it, except ``keep`` and the folders leading to it."""
+    if not path.is_dir():
+        return
     if not keep.is_relative_to(path):
         shutil.rmtree(path, ignore_errors=True)
         return

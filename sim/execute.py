@@ -326,18 +326,20 @@ class _ClosedLoop:
         segment stops for good (``stopped``). While the arm is held, growth rounds that add no
         vertex count against ``max_replans`` too, so that a growth that never ends cannot hold
         it forever. ``moves_only``: a plan has arrived and waits for the arm to reach its start:
-        only a move is acted on (its re-plan replaces the waiting plan)."""
+        only a move that can be re-planned for is acted on (its plan replaces the waiting one);
+        with the re-plans used up, the move is left to be seen after the switch, against the plan
+        then followed."""
         s, result = self.s, self.result
         held = self._holding()
         names, poses = self.world.sensed_landmarks()
         now = np.asarray(poses)[:, :3, 3]
         assert self.planned_at is not None
         moved = _moved(now, self.planned_at, s.replan_threshold)
+        can_replan = result.n_replans + self.idle_held < s.max_replans
+        if moves_only and not (moved and can_replan):
+            return
         if moved:
             self.planned_at = now
-        can_replan = result.n_replans + self.idle_held < s.max_replans
-        if moves_only and not moved:
-            return
         if moved and can_replan:
             self._replan("move", names, poses)
         elif moved:
