@@ -48,7 +48,9 @@ def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 
     crashed ones), and is left out of every other figure (it has none).
 
     Latencies, each ``{median, p95, mean}`` in ms: ``initial_ms`` and ``replan_ms`` are the searches
-    alone (the paper's planning latency); ``build_ms`` is the first landmark update (the
+    alone (the paper's planning latency), of the first plan and of each re-plan after a sensed move
+    (``replan_kind`` "move"; the anytime re-plans on a growing roadmap are ``improve_ms``, which they
+    had raised the pour's median five-fold in ``replan_ms``); ``build_ms`` is the first landmark update (the
     roadmap's construction) before the first plan, ``improve_ms`` the anytime re-plans after a
     far move (the roadmap's growth, the old plan's check and the search on it), and
     ``reaction_ms`` a re-plan's landmark update (new step costs, new biased vertices after a far
@@ -58,15 +60,14 @@ def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 
     found (no path, unreachable: an answer, often at once) is no planning latency and is left out
     of them all."""
     init = [r["initial_ms"] for r in runs if _found(r)[0]]
-    rep = [x for r in runs for x, ok in zip(r["replan_ms"], _found(r)[1:]) if ok]
+    rep = [x for r in runs for x, kind, ok in zip(r["replan_ms"], _kinds(r), _found(r)[1:]) if ok and kind == "move"]
     build = [r.get("build_ms") for r in runs]  # (stats leaves out the runs without one)
     react, improve = [], []
     for r in runs:
         if len(r.get("replan_update_ms", ())) != len(r["replan_ms"]):
             continue  # logged before the update was timed
-        kinds = r.get("replan_kind") or ["move"] * len(r["replan_ms"])
         checks = r.get("path_check_ms") or [0.0] * len(r["replan_ms"])  # (runs logged before the check)
-        for kind, u, c, x, ok in zip(kinds, r["replan_update_ms"], checks, r["replan_ms"], _found(r)[1:]):
+        for kind, u, c, x, ok in zip(_kinds(r), r["replan_update_ms"], checks, r["replan_ms"], _found(r)[1:]):
             if ok:
                 (react if kind == "move" else improve).append(u + c + x)
     return {
@@ -87,6 +88,12 @@ def summarize(runs: list[dict], variant, learning_time_s: float, crashed: int = 
                        "reason": r["reason"], "fraction_in_bowl": r["fraction_in_bowl"]}
                       for r in sorted(runs, key=lambda r: (r.get("demo_seed", 0), r["scenario"]))],
     }
+
+
+def _kinds(r: dict) -> list[str]:
+    """Each re-plan's cause in run ``r``: "move" or "growth" (every one a move for a run logged
+    before the anytime re-plans were told apart)."""
+    return r.get("replan_kind") or ["move"] * len(r["replan_ms"])
 
 
 def _found(r: dict) -> list[bool]:
@@ -180,8 +187,9 @@ def format_table(results: dict, task: str, latency: str | None = None, cells: di
                      f"{_ms(v.get('reaction_ms')):>9} {_ms(v.get('reaction_ms'), 'mean'):>7} "
                      f"{_deg(v.get('tilt_error_deg')):>12}")
     lines.append("Plan, Replan and Reaction: medians, the Reaction's mean beside it; Plan and Replan: the search "
-                 "alone (the paper's latency); Reaction: a re-plan with the "
-                 "landmark update and the check of the plan being followed before it (or the roadmap's growth, for the anytime re-plan after a far move); "
+                 "alone (the paper's latency), of the first plan and of the re-plans after a sensed move; Reaction: "
+                 "such a re-plan with the landmark update and the check of the plan being followed before it (the "
+                 "anytime re-plans while the roadmap grows after a far move: improve_ms in results.json); "
                  f"the paper: {PAPER_LATENCY_MS.get(task, '-')} ms on 12 cores, a mean over 10 scenarios; Tilt error: the "
                  "tool's largest tilt against the demonstrations' mean, |median| / p95 in degrees")
     crashed = sum(v.get("crashed", 0) for v in results.values())

@@ -21,12 +21,18 @@ __all__ = ["read_log", "run_settings_of", "save_path"]
 def save_path(out_dir: Path, row: dict, path) -> str:
     """Write a run's task-point path ``(P, 3)`` (world frame, m, one point every
     ``ExecSettings.record_every`` simulation steps) to ``paths/<variant>[_demos<k>]_<latency>_<scenario>.npy``
-    under ``out_dir``; returns that name relative to ``out_dir`` (what ``runs.jsonl`` records).
-    The latency mode is in the name because a log may keep runs of another setting, which are
-    run again beside them (``evaluate``): each row keeps its own path."""
+    under ``out_dir``, or ``..._<scenario>_<k>.npy`` with the first ``k >= 2`` free when that file
+    exists; returns that name relative to ``out_dir`` (what ``runs.jsonl`` records). A log may keep
+    runs of another setting (roadmap size, models, latency...), which are run again beside them
+    (``evaluate``): each row keeps its own path (the second run's path had overwritten the first's,
+    which its row still named)."""
     draw = f"_demos{row['demo_seed']}" if row.get("demo_seed") else ""
-    rel = Path("paths") / f"{row['variant']}{draw}_{row.get('latency', 'none')}_{row['scenario']}.npy"
-    (out_dir / rel).parent.mkdir(parents=True, exist_ok=True)
+    stem = f"{row['variant']}{draw}_{row.get('latency', 'none')}_{row['scenario']}"
+    (out_dir / "paths").mkdir(parents=True, exist_ok=True)
+    rel, k = Path("paths") / f"{stem}.npy", 1
+    while (out_dir / rel).exists():
+        k += 1
+        rel = Path("paths") / f"{stem}_{k}.npy"
     np.save(out_dir / rel, np.asarray(path, dtype=np.float64).reshape(-1, 3))
     return rel.as_posix()
 
