@@ -38,6 +38,7 @@ from lfd.cli import ArgumentParser, UsageError, run_main, writable_dir
 from lfd.planning.planner import ClosedLoopPlanner, PlannerSettings
 from lfd.planning.roadmap import Roadmap, mixed_samples
 from lfd.planning.stepcost import CallableStepCost
+from sim.report import strict_json
 
 ROOT = Path(__file__).resolve().parent.parent
 LOWER = np.array([-1.70, -2.147, -3.05, -0.05, -3.059, -1.571, -3.059])
@@ -170,7 +171,7 @@ def main(argv=None) -> int:
               "runs": [run_size(n, args.moves, args.seed, args.move_sigma)
                        for n in args.sizes]}
     try:
-        args.out.write_text(json.dumps(report, indent=2))
+        args.out.write_text(json.dumps(strict_json(report), indent=2))  # (an unplanned cost: null, not Infinity)
     except OSError as e:
         raise UsageError(f"cannot write {args.out}: {e.strerror or e}") from e
     for r in report["runs"]:

@@ -45,6 +45,11 @@ def _plan_row(res, update_s: float = 0.0) -> dict:
     return row
 
 
+def _found_s(row: dict, key: str = "total_s"):
+    """``row[key]`` (s) of a plan that was found, else None (not a planning latency)."""
+    return row.get(key) if row.get("status") == "ok" else None
+
+
 def _summary(values) -> dict:
     """``sim.report.stats`` of the scenes' ``values`` that were measured, and their number."""
     from sim.report import measured, stats
@@ -135,9 +140,10 @@ def main(argv=None) -> int:
               f"{r.get('total_s', float('nan')) * 1e3:.0f} ms ({r.get('status', '-')})", flush=True)
     summary = {
         "model": str(model_dir), "n_scenes": len(scenes), "base_seed": args.seed, "roadmap_size": args.roadmap_size,
-        "reaction_s": _summary([s.get("reaction", {}).get("total_s") for s in scenes]),
-        "initial_s": _summary([s["initial"]["plan_s"] for s in scenes]),
-        "improve_s": _summary([s.get("improve", {}).get("total_s") for s in scenes]),
+        # latencies of plans found (an answer without a plan, often at once, is none: sim.report.summarize too)
+        "reaction_s": _summary([_found_s(s.get("reaction", {})) for s in scenes]),
+        "initial_s": _summary([_found_s(s["initial"], "plan_s") for s in scenes]),
+        "improve_s": _summary([_found_s(s.get("improve", {})) for s in scenes]),
         "growth_s": _summary([s.get("growth_s") for s in scenes]),
         "build_s": _summary([s["build_s"] for s in scenes]),
         "reaction_parts_median_s": {k: _summary([s.get("reaction", {}).get(k) for s in scenes])["median"]
