@@ -397,6 +397,8 @@ def test_a_landmark_first_sensed_after_the_build_or_drifting_slowly_is_an_obstac
     C = res.configurations
     assert not any(seg(a, b) for a, b in zip(C[:-1], C[1:]))
 
+
+def test_unreachable_is_judged_even_when_the_roadmap_is_full(kin):
     """At the vertex cap no biased vertices are added, but a few IK-only executions still tell
     an out-of-reach landmark from a reachable one."""
     model = _tight_model(kin)
