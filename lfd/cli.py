@@ -17,6 +17,7 @@ import argparse
 import errno
 import os
 import shlex
+import shutil
 import sys
 from pathlib import Path
 
@@ -33,6 +34,8 @@ __all__ = [
     "check_device_available",
     "check_seed",
     "error_line",
+    "first_missing",
+    "remove_created",
     "resume_command",
     "run_main",
     "writable_dir",
@@ -122,6 +125,52 @@ def writable_dir(path: str | Path, what: str = "--out") -> Path:
     if not os.access(path, os.W_OK | os.X_OK):
         raise UsageError(f"{what} {path}: folder is not writable")
     return path
+
+
+def first_missing(path: Path) -> Path | None:
+    """The outermost folder on the way to ``path`` that does not exist yet (what creating
+    ``path`` makes), or None when ``path`` exists."""
+    path = Path(os.path.abspath(path))
+    missing = None
+    for p in (path, *path.parents):
+        if p.exists() or p.is_symlink():
+            break
+        missing = p
+    return missing
+
+
+def remove_created(out: Path, created: Path, keep: Path) -> None:
+    """Remove a failed run's ``out`` and then each folder above it up to ``created`` (the outermost
+    one the run made, ``first_missing``) while it is empty: what else was written there meanwhile
+    (demonstrations generated into ``runs/demos`` when ``created`` is ``runs``) stays, and so does
+    ``keep`` when it lies inside ``out`` (``lfd-train --out runs``: the demonstrations generated
+    into ``runs/demos/<task>``)."""
+    _remove_but(out, keep)
+    for p in out.parents:
+        if not p.is_relative_to(created):
+            break
+        try:
+            p.rmdir()  # only when empty
+        except OSError:
+            break
+
+
+def _remove_but(path: Path, keep: Path) -> None:
+    """Remove ``path`` (a folder) with everything in it, except ``keep`` and the folders leading to it."""
+    if not path.is_dir():
+        return
+    if not keep.is_relative_to(path):
+        shutil.rmtree(path, ignore_errors=True)
+        return
+    if keep == path:
+        return
+    for child in path.iterdir():
+        if keep.is_relative_to(child):
+            _remove_but(child, keep)
+        elif child.is_dir() and not child.is_symlink():
+            shutil.rmtree(child, ignore_errors=True)
+        else:
+            child.unlink(missing_ok=True)
 
 
 def resume_command(argv, prog: str, console: str) -> str:

@@ -27,7 +27,6 @@ from __future__ import annotations
 import functools
 import json
 import os
-import shutil
 import sys
 import warnings
 from pathlib import Path
@@ -41,7 +40,9 @@ from lfd.cli import (
     check_device_available,
     check_seed,
     check_task_name,
+    first_missing,
     path_arg,
+    remove_created,
     resume_command,
     run_main,
     writable_dir,
@@ -204,18 +205,6 @@ def ensure_demos(task: str, demos_dir: Path, seed: int) -> None:
     generate(task, demos_dir, n=11, seed=seed)
 
 
-def _first_missing(path: Path) -> Path | None:
-    """The outermost folder on the way to ``path`` that does not exist yet (what creating
-    ``path`` makes), or None when ``path`` exists."""
-    path = Path(os.path.abspath(path))
-    missing = None
-    for p in (path, *path.parents):
-        if p.exists() or p.is_symlink():
-            break
-        missing = p
-    return missing
-
-
 def main(argv=None, prog: str = PROG) -> int:
     """``lfd-train`` / ``python train.py``: 0 on success, 130 / 143 when interrupted; raises
     ``UsageError`` (and the other ``lfd.cli.USER_ERRORS``) on bad input."""
@@ -223,7 +212,7 @@ def main(argv=None, prog: str = PROG) -> int:
     from lfd.learning.checkpoint import Interrupted, InterruptGuard, checkpoint_path
 
     out_arg = args.out or default_out(args.task)
-    created = _first_missing(out_arg)
+    created = first_missing(out_arg)
     out = writable_dir(out_arg)
     progress = {"done": None, "restarts": args.restarts}
     keep = False
@@ -246,41 +235,8 @@ def main(argv=None, prog: str = PROG) -> int:
                 return e.exit_status
     finally:
         if not keep and created is not None:  # no empty or half-written folder of ours is left
-            _remove_created(Path(os.path.abspath(out)), created,
+            remove_created(Path(os.path.abspath(out)), created,
                             Path(os.path.abspath(args.demos or default_demos(args.task))))
-
-
-def _remove_created(out: Path, created: Path, demos: Path) -> None:
-    """Remove ``out`` and then each folder above it up to ``created`` (the outermost one this run
-    made) while it is empty: what else was written there meanwhile (demonstrations generated
-    into ``runs/demos`` when ``created`` is ``runs``) stays, and so does the ``demos`` folder
-    when it lies inside ``out`` (``--out runs``: generated into ``runs/demos/<task>``)."""
-    _remove_but(out, demos)
-    for p in out.parents:
-        if not p.is_relative_to(created):
-            break
-        try:
-            p.rmdir()  # only when empty
-        except OSError:
-            break
-
-
-def _remove_but(path: Path, keep: Path) -> None:
-    """Remove ``path`` (a folder) with everything in it, except ``keep`` and the folders leading to it."""
-    if not path.is_dir():
-        return
-    if not keep.is_relative_to(path):
-        shutil.rmtree(path, ignore_errors=True)
-        return
-    if keep == path:
-        return
-    for child in path.iterdir():
-        if keep.is_relative_to(child):
-            _remove_but(child, keep)
-        elif child.is_dir() and not child.is_symlink():
-            shutil.rmtree(child, ignore_errors=True)
-        else:
-            child.unlink(missing_ok=True)
 
 
 def cli() -> None:
