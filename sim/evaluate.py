@@ -38,6 +38,7 @@ from lfd.train_cli import default_demos, ensure_demos
 from lfd.train_cli import main as train_main
 from sim.attitude import demo_tilt
 from sim.latency import parse_latency
+from sim.model_check import MODEL_FILES, is_trained
 from sim.reach import DumpReach
 from sim.report import format_table, spread, strict_json, summarize
 from sim.runlog import read_log, run_settings_of, save_path
@@ -150,7 +151,7 @@ def model_dir_for(models: Path, v: Variant, demo_seed: int = 0) -> Path:
 def check_models_folder(models: Path) -> None:
     """``UsageError`` when ``models`` is one model's own folder, not the folder of the variants'
     models (a new model was trained inside it, without a word)."""
-    if (Path(models) / "model.pt").is_file() or (Path(models) / "config.json").is_file():
+    if any((Path(models) / name).is_file() for name in MODEL_FILES):
         raise UsageError(f"--models {models}: a model's own folder (it holds model.pt or config.json); --models takes "
                          f"the folder of the variants' models ({', '.join(sorted({v.model_key for v in VARIANTS}))}), "
                          f"--model plans with one model")
@@ -166,7 +167,7 @@ def ensure_model(task: str, models: Path, demos: Path | None, v: Variant, train_
     seed: a model is trained once and evaluated on any scenario set, so that tables of different
     base seeds compare the same models. Draw k > 0 is generated here (seed k) when missing."""
     out = model_dir_for(models, v, demo_seed)
-    if (out / "model.pt").is_file() and (out / "config.json").is_file():
+    if is_trained(out):
         return out
     demos = demos_for(task, demos, demo_seed)
     if demo_seed:
@@ -206,7 +207,7 @@ def check_trained_on(task: str, models: Path, demos: Path | None, variants, demo
         mine = None  # the draw's fingerprint, read once
         for v in variants:
             d = model_dir_for(models, v, k)
-            if not ((d / "model.pt").is_file() and (d / "config.json").is_file()):
+            if not is_trained(d):
                 continue
             summary = _read_summary(d / "summary.json")
             recorded, steps = summary.get("demos_fingerprint"), summary.get("time_steps")

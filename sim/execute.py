@@ -419,10 +419,10 @@ class _ClosedLoop:
         blocked = self._first_blocked(follow.position, pos)
         if blocked is None:
             return pos, False
-        charged = charged_s(self.s.latency, time.perf_counter() - tic)
-        told = follow.predict(charged)  # where the news finds it, had it moved on meanwhile
+        wall = time.perf_counter() - tic
+        told = follow.predict(charged_s(self.s.latency, wall))  # where the news finds it, had it moved on meanwhile
         if self.stop_at is not None and (self.release_at is None
-                                         or self.release_at >= self.step + int(round(charged / L.SIM_DT))):
+                                         or self.release_at >= self.step + self._charged_steps(wall)):
             told = min(told, self.stop_at)  # it holds there until the news arrives (a second move's check
             # put the stop past a hold before a blocked segment, into the segment)
         return min(max(blocked, told), pos), True

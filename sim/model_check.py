@@ -16,7 +16,8 @@ from lfd.cli import UsageError
 from lfd.learning.model import TaskModel
 from lfd.robot.robots import RobotSpec, resolve_urdf
 
-__all__ = ["check_models_for_task", "load_checked_model", "model_mismatch", "scenario_provides"]
+__all__ = ["MODEL_FILES", "check_models_for_task", "is_trained", "load_checked_model", "model_mismatch",
+           "scenario_provides"]
 
 
 def scenario_provides(task: str) -> tuple[tuple[str, ...], RobotSpec]:
@@ -76,13 +77,20 @@ def load_checked_model(model_dir: str | Path, task: str | None = None,
     return model, task
 
 
+MODEL_FILES = ("model.pt", "config.json")  # what TaskModel.save writes and load reads
+
+
+def is_trained(model_dir: Path) -> bool:
+    """Whether ``model_dir`` holds a trained model (``MODEL_FILES``); an evaluation trains the
+    variants whose folders do not."""
+    return all((Path(model_dir) / name).is_file() for name in MODEL_FILES)
+
+
 def check_models_for_task(model_dirs, task: str, what: str = "--models") -> list[int | None]:
-    """Check every already trained model among ``model_dirs`` (folders holding ``model.pt`` and
-    ``config.json``, as ``sim.evaluate.ensure_model`` counts them) against the ``task`` scenarios;
+    """Check every already trained model among ``model_dirs`` (``is_trained``) against the ``task`` scenarios;
     the other folders are left to be trained. Returns each folder's number of time steps, ``None``
     for a folder still to be trained."""
     steps: list[int | None] = []
     for d in map(Path, model_dirs):
-        trained = (d / "model.pt").is_file() and (d / "config.json").is_file()
-        steps.append(load_checked_model(d, task, what=what)[0].time_steps if trained else None)
+        steps.append(load_checked_model(d, task, what=what)[0].time_steps if is_trained(d) else None)
     return steps

@@ -11,6 +11,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from sim.model_check import MODEL_FILES
 from sim.scenarios import Scenario
 
 __all__ = ["EXEC_PACE", "init_worker", "model_files", "plan_scenario", "run_one", "run_one_shipped",
@@ -94,7 +95,7 @@ def run_one_shipped(files: dict, task: str, scenario: Scenario, variant, roadmap
 
 def model_files(model_dir: Path) -> dict:
     """The files ``TaskModel.load`` reads, ``{name: bytes}``: what a remote worker needs."""
-    return {name: (model_dir / name).read_bytes() for name in ("model.pt", "config.json")}
+    return {name: (model_dir / name).read_bytes() for name in MODEL_FILES}
 
 
 def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int | None, gui: bool = False,

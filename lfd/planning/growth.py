@@ -92,15 +92,20 @@ class BiasedGrowth:
         near there, else none (not known until grown; the search decides meanwhile). The verdict
         of the place the landmarks left would refuse a place in reach, or pass one out of it."""
         pos = landmarks[:, :3, 3].cpu().numpy()
-        near = self.settings.regrow_distance
         g = self._growth
-        if g is not None and np.abs(pos - g.pos).max() <= near:
+        if g is not None and np.abs(pos - g.pos).max() <= self.settings.regrow_distance:
             self._unreachable = self._verdict(g.reached)
             return
+        remembered = self._remembered(pos)
+        self._unreachable = np.zeros(0, dtype=int) if remembered is None else remembered
+
+    def _remembered(self, pos: np.ndarray) -> np.ndarray | None:
+        """The verdict kept for the place nearest ``pos (Z, 3)`` among those the roadmap was grown
+        for, when it is within ``regrow_distance``; else None."""
         dist = [np.abs(pos - p).max() for p, _ in self._grown_for]
-        nearest = int(np.argmin(dist)) if dist else -1
-        self._unreachable = (self._grown_for[nearest][1] if dist and dist[nearest] <= near
-                             else np.zeros(0, dtype=int))
+        if not dist or min(dist) > self.settings.regrow_distance:
+            return None
+        return self._grown_for[int(np.argmin(dist))][1]
 
     def initial(self, rm: Roadmap, landmarks: torch.Tensor, n: int) -> None:
         """Every round of a growth of about ``n`` vertices for ``landmarks (Z, 4, 4)`` (the roadmap's
@@ -193,10 +198,9 @@ class BiasedGrowth:
         there already or is full (then the verdict is settled here)."""
         s = self.settings
         room = self.room(rm)
-        dist = [np.abs(pos - g).max() for g, _ in self._grown_for]
-        nearest = int(np.argmin(dist))
-        if dist[nearest] <= s.regrow_distance:
-            self._unreachable = self._grown_for[nearest][1]
+        remembered = self._remembered(pos)
+        if remembered is not None:
+            self._unreachable = remembered
             return None
         if min(room, self.regrow) <= 0 or not s.bias_fraction:
             # the roadmap is full: a few sampled executions, IK only, still give the verdict
