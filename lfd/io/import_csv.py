@@ -2,15 +2,19 @@
 
     lfd-import RECORDINGS --out DIR --task NAME [--rate HZ] [--time-steps T] [--reference LANDMARK]
                [--robot NAME | --robot-json FILE] [--columns MAPPING.json] [--frame-pose X Y Z QX QY QZ QW]
-               [--max-gap S] [--trim-pauses RAD]
+               [--max-gap S] [--trim-pauses RAD] [--dropouts bridge|refuse] [--outliers drop|refuse]
+               [--smooth SECONDS] [--no-plot]
 
 The formats are ``lfd.io.recordings``'s. The set is written into a new folder beside ``--out``
 and checked by loading it (``lfd.learning.demos.load_demos``) before it takes ``--out``'s name,
-so a refused recording leaves nothing half-written. ``--out`` must not exist yet.
+so a refused recording leaves nothing half-written. ``--out`` must not exist yet. Beside the
+set go ``import_report.json`` (what the cleaning did to each demonstration and landmark) and
+``import.png`` (the same as a picture; needs matplotlib).
 """
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import shutil
@@ -24,9 +28,11 @@ import numpy as np
 from lfd.cli import ArgumentParser, UsageError, check_task_name, path_arg, run_main, writable_dir
 from lfd.learning.tasks import MAX_DT
 
-__all__ = ["PROG", "build_parser", "cli", "main"]
+__all__ = ["PLOT", "PROG", "REPORT", "build_parser", "cli", "main", "report_lines"]
 
 PROG = "lfd-import"
+REPORT = "import_report.json"  # beside the set: what the cleaning did to each demonstration
+PLOT = "import.png"
 MAX_RATE = 1000.0  # Hz: resampled faster, a recording is only interpolated (and 1e7 Hz filled the memory)
 
 
@@ -57,6 +63,17 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     p.add_argument("--trim-pauses", type=float, default=0.0, metavar="RAD",
                    help="leave out the start (end) while every joint stays within RAD of where it starts (ends): "
                         "the pauses before and after the motion (default: 0, keep all)")
+    p.add_argument("--dropouts", choices=("bridge", "refuse"), default="bridge",
+                   help="missing readings (NaN, empty, all-zero poses, zero quaternions): bridge them like the "
+                        "recorder's gaps, up to --max-gap (default), or refuse the recording")
+    p.add_argument("--outliers", choices=("drop", "refuse"), default="drop",
+                   help="a landmark reading farther from its neighbours than 5 m/s carries it: drop it and report "
+                        "it (default), or refuse the recording")
+    p.add_argument("--smooth", type=float, default=0.0, metavar="SECONDS",
+                   help="smooth tracked landmarks with a Savitzky-Golay filter over this window (default: 0, not "
+                        "smoothed; the report gives each landmark's jitter)")
+    p.add_argument("--no-plot", action="store_true",
+                   help="do not draw import.png (what was done to each demonstration) beside the set")
     return p
 
 
@@ -103,13 +120,16 @@ def main(argv=None, prog: str = PROG) -> int:
                                                                       and args.trim_pauses >= 0):
         raise UsageError(f"--max-gap must be positive and --trim-pauses at least 0, got {args.max_gap}, "
                          f"{args.trim_pauses}")
+    if not (math.isfinite(args.smooth) and args.smooth >= 0):
+        raise UsageError(f"--smooth must be a window of 0 seconds or more, got {args.smooth}")
     if not (1.0 / MAX_DT <= args.rate <= MAX_RATE) or args.time_steps < 2:
         raise UsageError(f"--rate must be within [{1.0 / MAX_DT:g}, {MAX_RATE:g}] Hz and --time-steps at least 2, "
                          f"got {args.rate}, {args.time_steps}")
     robot = _robot(args)
     columns = JointColumns.load(args.columns) if args.columns else None
     ds, report = import_recordings(args.recordings, robot, args.rate, columns=columns, T_base_frame=_frame(args.frame_pose),
-                                   max_gap=args.max_gap, trim=args.trim_pauses)
+                                   max_gap=args.max_gap, trim=args.trim_pauses, dropouts=args.dropouts,
+                                   outliers=args.outliers, smooth=args.smooth)
     short = [(r["name"], r["samples"]) for r in report if r["samples"] < args.time_steps]
     if short:
         raise UsageError(f"{args.recordings}: demonstration(s) {short} have fewer samples at {args.rate:g} Hz than "
@@ -130,18 +150,76 @@ def main(argv=None, prog: str = PROG) -> int:
     try:
         files = [p.name for p in save_demos(tmp, ds)]
         load_demos(tmp)  # every check of the format, before the set takes its name
+        for r, file in zip(report, files):
+            r["file"] = file
+        (tmp / REPORT).write_text(json.dumps({"settings": _settings_record(args), "demonstrations": report},
+                                             indent=1) + "\n")
         tmp.rename(args.out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    for r, file in zip(report, files):  # (later messages name the file, not the recording)
+    for line in report_lines(report, args.rate):
+        print(line)
+    print(f"wrote {len(ds.demos)} demonstrations of {args.task!r} (landmarks {list(ds.landmark_names)}, "
+          f"robot {robot.name}) to {args.out}; what was done to each: {args.out / REPORT}", file=sys.stdout)
+    if not args.no_plot:
+        _plot(ds, report, args.out / PLOT)
+    return 0
+
+
+def _settings_record(args) -> dict:
+    return {"rate": args.rate, "max_gap": args.max_gap, "trim_pauses": args.trim_pauses, "dropouts": args.dropouts,
+            "outliers": args.outliers, "smooth": args.smooth, "frame_pose": args.frame_pose}
+
+
+def report_lines(report: list[dict], rate: float) -> list[str]:
+    """The console's account of an import: a line per demonstration, then a line per landmark
+    (and the joints) over all demonstrations, saying what the cleaning did."""
+    lines = []
+    for r in report:  # (later messages name the file, not the recording)
         trimmed = f", trimmed {r['trimmed_start_s']:g} s + {r['trimmed_end_s']:g} s" \
             if r["trimmed_start_s"] or r["trimmed_end_s"] else ""
-        print(f"{r['name']} -> {file}: {r['raw_samples']} rows -> {r['samples']} samples at "
-              f"{args.rate:g} Hz{trimmed}; landmarks {r['landmarks']}")
-    print(f"wrote {len(ds.demos)} demonstrations of {args.task!r} (landmarks {list(ds.landmark_names)}, "
-          f"robot {robot.name}) to {args.out}", file=sys.stdout)
-    return 0
+        lines.append(f"{r['name']} -> {r['file']}: {r['raw_samples']} rows -> {r['samples']} samples at "
+                     f"{rate:g} Hz{trimmed}; landmarks {r['landmarks']}")
+    joints = [r["joints"] for r in report]
+    if any(j["dropouts"] or j["merged"] for j in joints):
+        lines.append(f"  joints: {sum(j['dropouts'] for j in joints)} missing readings bridged, "
+                     f"{sum(j['merged'] for j in joints)} rows of a repeated time stamp merged; longest gap "
+                     f"{max(j['longest_gap_s'] for j in joints):.3g} s")
+    for name in report[0]["tracks"]:
+        tr = [r["tracks"][name] for r in report]
+        if all(x["rate_hz"] is None and x["readings"] == 1 for x in tr):
+            lines.append(f"  {name}: read once per demonstration (held still)")
+            continue
+        rates = [x["rate_hz"] for x in tr if x["rate_hz"] is not None]
+        jitter = [x["jitter_mm"] for x in tr if x["jitter_mm"] is not None]
+        parts = [f"{sum(x['readings'] for x in tr)} readings"]
+        if rates:
+            parts.append(f"tracker {np.median(rates):.1f} Hz")
+        parts.append(f"{sum(x['dropouts'] for x in tr)} dropouts bridged (longest gap "
+                     f"{max(x['longest_gap_s'] for x in tr):.3g} s)")
+        parts.append(f"{sum(x['repeated'] for x in tr)} repeated + {sum(x['merged'] for x in tr)} near-simultaneous "
+                     "readings merged")
+        out = [f"{r['name']} {x['outlier_where']}" for r, x in zip(report, (r["tracks"][name] for r in report))
+               if x["outliers"]]
+        parts.append(f"{sum(x['outliers'] for x in tr)} outliers dropped" + (f" ({'; '.join(out)})" if out else ""))
+        if jitter:
+            parts.append(f"jitter {np.median(jitter):.1f} mm RMS (median)")
+        if any(x["smoothed_s"] for x in tr):
+            parts.append(f"smoothed over {max(x['smoothed_s'] for x in tr):g} s")
+        lines.append(f"  {name}: " + ", ".join(parts))
+    return lines
+
+
+def _plot(ds, report, path: Path) -> None:
+    """``import.png`` beside the set; a note instead when matplotlib is not installed."""
+    try:
+        import matplotlib  # noqa: F401  (a [sim] extra; lfd-import runs without it)
+    except ImportError:
+        print(f"(no {path.name}: matplotlib is not installed; pip install matplotlib, or lfd-landmarks[sim])")
+        return
+    from lfd.plots import plot_import
+    print(f"drew what was imported: {plot_import(ds, report, path)}")
 
 
 def cli() -> None:

@@ -18,15 +18,22 @@ spreadsheet's byte-order mark is allowed).
   times is tracked and interpolated at the joint samples' times (positions linearly,
   orientations by slerp), so a tracker running at another rate is aligned by time.
 
-Every demonstration is resampled to one rate (joints linearly) from its first joint sample.
-What a recording must satisfy, each refused with one line naming the file and row
-(``RecordingError``): the columns exist, every value is a number, time increases (joint rows;
-each landmark's rows), no gap between samples is longer than ``max_gap``, quaternions are unit
-(within ``QUAT_TOLERANCE``), every demonstration names the same landmarks, every landmark
-has a reading within ``max_gap`` of both ends of each demonstration, and none is farther than
-``lfd.learning.demo_checks.MAX_LANDMARK_DISTANCE`` (20 m) from the robot's base (another unit). Pauses at the start and
-end (every joint within ``trim`` rad of where it starts or ends) can be trimmed, and are reported.
-``import_recordings`` returns the ``DemoSet`` and a report; ``lfd.io.import_csv`` writes it.
+Real recorders leave dropouts, repeated and near-simultaneous stamps, outliers and jitter: each
+landmark's readings and the joints are cleaned first (``lfd.io.cleaning``, what was done is
+reported), then every demonstration is resampled to one rate (joints linearly) from its first
+joint sample. What a recording must satisfy, each refused with one line naming the file and
+row (``RecordingError``): every row has the header's number of fields, the columns exist, every
+value is a number (or, for a joint or a pose, a missing reading: empty, ``nan``, ``NA``),
+time never goes back, no gap between the readings kept is longer than ``max_gap``, quaternions
+are unit (within ``QUAT_TOLERANCE``) or a dropout, every demonstration names the same
+landmarks, every landmark has a reading within ``max_gap`` of both ends of each demonstration,
+none is farther than ``lfd.learning.demo_checks.MAX_LANDMARK_DISTANCE`` (20 m) from the robot's
+base (another unit), and none moves faster than 5 m/s once lone outliers are dropped. Pauses
+at the start and end (every joint within ``trim`` rad of where it starts or ends) can be
+trimmed, and are reported. Every reader makes ``lfd.io.raw.RawRecording`` objects
+(``read_csv_recording`` here, ``lfd.io.rosbag`` for bags) and ``import_raw`` turns them into the
+``DemoSet`` and its report; ``import_recordings`` does it for a folder of CSVs, and
+``lfd.io.import_csv`` (``lfd-import``) writes the set.
 """
 
 from __future__ import annotations
@@ -41,23 +48,27 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from lfd.errors import UserInputError
-from lfd.learning.demo_checks import LIMIT_TOLERANCE, far_landmark, jumping_landmark, other_task_dt, unusable_demos
+from lfd.io.cleaning import (
+    DROPOUT_MODES,
+    OUTLIER_MODES,
+    QUAT_TOLERANCE,
+    CleanJoints,
+    CleanTrack,
+    clean_joints,
+    clean_track,
+)
+from lfd.io.raw import RawRecording, RawTrack, RecordingError
+from lfd.learning.demo_checks import LIMIT_TOLERANCE, other_task_dt, unusable_demos
 from lfd.learning.demoset import Demonstration, DemoSet
 from lfd.learning.tasks import TaskSpec, is_real
 from lfd.robot.robots import RobotSpec
 from lfd.robot.se3 import not_rigid
 
-__all__ = ["LANDMARK_COLUMNS", "MAX_DEMO_S", "QUAT_TOLERANCE", "JointColumns", "RecordingError", "find_recordings",
-           "import_recordings"]
+__all__ = ["LANDMARK_COLUMNS", "MAX_DEMO_S", "QUAT_TOLERANCE", "ImportSettings", "JointColumns", "RecordingError",
+           "find_recordings", "import_raw", "import_recordings", "read_csv_recording"]
 
 LANDMARK_COLUMNS = ("time", "name", "x", "y", "z", "qx", "qy", "qz", "qw")
-QUAT_TOLERANCE = 1e-3  # |norm - 1| allowed in a recorded quaternion
 MAX_DEMO_S = 3600.0  # s: a demonstration longer than an hour is a time stamp in error (a task takes seconds)
-
-
-class RecordingError(UserInputError):
-    """A recording that cannot be imported (the message names the file, the row and the reason)."""
 
 
 @dataclass(frozen=True)
@@ -113,6 +124,10 @@ def find_recordings(root: str | Path) -> list[tuple[str, Path, Path | None]]:
 
     File names are matched without regard to case (``joints.CSV`` as written on some systems);
     hidden entries (``.name``, such as the ``._*`` files macOS leaves on shared drives) are skipped.
+    Every visible folder is a demonstration: one without a ``joints.csv`` file is refused (a
+    ``joints.csv.txt``, a folder or a looping link of that name: the set would lose it without a
+    word), and so is a recording's file that is not a regular file, a ``DEMO_landmarks.csv``
+    without its ``DEMO_joints.csv`` and a file named like a recording that is not one.
     Two entries whose names differ only in case, or two recordings of one name (``DEMO/`` and
     ``DEMO_joints.csv``), are refused: one would stand for the other on another file system.
     """
@@ -132,18 +147,41 @@ def find_recordings(root: str | Path) -> list[tuple[str, Path, Path | None]]:
             out[p.name.lower()] = p
         return out
 
+    def regular(p: Path | None, what: str) -> Path | None:
+        """``p`` when it is a readable regular file (None when absent); refused when it is a folder,
+        a broken or looping link, or another kind of entry (a demonstration would vanish)."""
+        if p is None:
+            return None
+        try:
+            if p.is_file():
+                return p
+        except OSError as e:  # a link loop on some Python versions
+            raise RecordingError(f"{p}: {what} cannot be opened ({e})") from e
+        kind = "a folder" if p.is_dir() else "a broken or looping link" if p.is_symlink() else "not a regular file"
+        raise RecordingError(f"{p}: {what} is {kind}, not a file")
+
     top = visible(root)
     found = []
     for d in (p for p in top.values() if p.is_dir()):
         inside = visible(d)
-        if "joints.csv" in inside and inside["joints.csv"].is_file():
-            lm = inside.get("landmarks.csv")
-            found.append((d.name, inside["joints.csv"], lm if lm is not None and lm.is_file() else None))
+        joints = regular(inside.get("joints.csv"), "the joint recording")
+        if joints is None:  # a folder in the recordings is a demonstration: one without its file is an error
+            held = ", ".join(sorted(p.name for p in inside.values())) or "nothing"
+            raise RecordingError(f"{d}: a folder without a joints.csv (it holds: {held}); name the joint "
+                                 f"recording joints.csv, or move the folder out of {root}")
+        found.append((d.name, joints, regular(inside.get("landmarks.csv"), "the landmark recording")))
     for low, f in top.items():
-        if low.endswith("_joints.csv") and f.is_file():
+        if low.endswith("_joints.csv"):
             name = f.name[: -len("_joints.csv")]
-            lm = top.get(f"{name.lower()}_landmarks.csv")
-            found.append((name, f, lm if lm is not None and lm.is_file() else None))
+            found.append((name, regular(f, "the joint recording"),
+                          regular(top.get(f"{name.lower()}_landmarks.csv"), "the landmark recording")))
+        elif low.endswith("_landmarks.csv"):
+            if low[: -len("_landmarks.csv")] + "_joints.csv" not in top:
+                raise RecordingError(f"{f}: a landmark recording without its joint recording "
+                                     f"{f.name[: -len('_landmarks.csv')]}_joints.csv")
+        elif ("_joints.csv" in low or "_landmarks.csv" in low) and not f.is_dir():  # joints.csv.txt, .csv.bak
+            raise RecordingError(f"{f}: named like a recording but not one (DEMO_joints.csv, DEMO_landmarks.csv); "
+                                 f"rename it or move it out of {root}")
     found.sort(key=lambda r: (r[0].lower(), r[0]))
     for (n1, j1, _), (n2, j2, _) in itertools.pairwise(found):
         if n1.lower() == n2.lower():
@@ -153,27 +191,42 @@ def find_recordings(root: str | Path) -> list[tuple[str, Path, Path | None]]:
     return found
 
 
-def _read_csv(path: Path) -> tuple[list[str], list[list[str]]]:
+MISSING = frozenset({"", "nan", "na", "n/a", "null", "none"})  # (lower case) a reading the recorder did not have
+
+
+def _read_csv(path: Path) -> tuple[list[str], list[list[str]], np.ndarray]:
+    """The header, the data rows and each row's line in the file ``(rows,)`` (1-based: the
+    header is line 1 when the file starts with it). Blank lines are skipped; a row with another
+    number of fields than the header (a truncated last row, values shifted under the wrong
+    columns) is refused."""
     try:
         # utf-8-sig: a spreadsheet's byte-order mark is not part of the first column's name
         with path.open(newline="", encoding="utf-8-sig") as fh:
-            rows = [r for r in csv.reader(fh) if r and any(c.strip() for c in r)]
+            reader = csv.reader(fh)
+            numbered = [(reader.line_num, r) for r in reader if r and any(c.strip() for c in r)]
     except UnicodeDecodeError as e:
         raise RecordingError(f"{path}: not UTF-8 text ({e}); save it as 'CSV UTF-8'") from e
     except (OSError, csv.Error) as e:
         raise RecordingError(f"{path}: cannot be read as CSV ({e})") from e
-    if len(rows) < 2:
+    if len(numbered) < 2:
         raise RecordingError(f"{path}: needs a header row and at least one data row")
-    other = next((sep for sep in ";\t|" if len(rows[0]) == 1 and sep in rows[0][0]), None)
+    header = [c.strip() for c in numbered[0][1]]
+    other = next((sep for sep in ";\t|" if len(header) == 1 and sep in header[0]), None)
     if other is not None:  # a spreadsheet in a locale whose decimal mark is ','
-        raise RecordingError(f"{path}: the header {rows[0][0]!r} is one column: the fields are separated by "
+        raise RecordingError(f"{path}: the header {header[0]!r} is one column: the fields are separated by "
                              f"{other!r}, not ','; save it as comma-separated CSV, with '.' as the decimal mark")
-    return [c.strip() for c in rows[0]], rows[1:]
+    for line, r in numbered[1:]:
+        if len(r) != len(header):  # read by position, a row of other length puts values under other columns
+            why = "fewer (a truncated row: the recorder stopped while writing?)" if len(r) < len(header) else "more"
+            raise RecordingError(f"{path}: row {line} has {len(r)} fields, the header {len(header)}: {why}")
+    return header, [r for _, r in numbered[1:]], np.array([line for line, _ in numbered[1:]], dtype=np.int64)
 
 
-def _numbers(path: Path, header: list[str], rows: list[list[str]], columns) -> np.ndarray:
-    """``(rows, len(columns))`` floats of the named columns; a missing column or a value that is
-    not a finite number is refused with its row (1-based, the header is row 1)."""
+def _numbers(path: Path, header: list[str], rows: list[list[str]], lines: np.ndarray, columns,
+             missing_ok=()) -> np.ndarray:
+    """``(rows, len(columns))`` floats of the named columns. A missing column, or a value that is
+    not a finite number, is refused with its row; in the columns ``missing_ok`` an empty cell or
+    ``nan`` / ``NA`` / ``null`` is a missing reading (NaN), for the cleaning to bridge."""
     missing = [c for c in columns if c not in header]
     if missing:
         raise RecordingError(f"{path}: missing column(s) {missing} (header: {header})")
@@ -184,81 +237,60 @@ def _numbers(path: Path, header: list[str], rows: list[list[str]], columns) -> n
     out = np.empty((len(rows), len(idx)))
     for i, r in enumerate(rows):
         for j, k in enumerate(idx):
+            cell = r[k].strip()
+            if columns[j] in missing_ok and cell.lower() in MISSING:
+                out[i, j] = math.nan
+                continue
             try:
-                out[i, j] = float(r[k])
-            except (ValueError, IndexError):
+                out[i, j] = float(cell)
+            except ValueError:
                 out[i, j] = math.nan
             if not math.isfinite(out[i, j]):
-                raise RecordingError(f"{path}: row {i + 2}, column {columns[j]!r}: "
-                                     f"{r[k] if k < len(r) else '(missing)'!r} is not a finite number")
+                raise RecordingError(f"{path}: row {int(lines[i])}, column {columns[j]!r}: {r[k]!r} is not a "
+                                     f"finite number")
     return out
 
 
-def _check_times(path: Path, t: np.ndarray, max_gap: float, what: str = "", rows=None) -> None:
-    """Time increases and has no gap over ``max_gap``; ``rows``: the file's data-row index of
-    each entry of ``t`` (default: consecutive), for the message."""
-    d = np.diff(t)
-    if (d <= 0).any():
-        i = int(np.flatnonzero(d <= 0)[0])
-        row = (i + 1 if rows is None else int(rows[i + 1])) + 2  # 1-based, after the header
-        raise RecordingError(f"{path}: {what}time does not increase at row {row} ({t[i + 1]:g} s after {t[i]:g} s)")
-    if (d > max_gap).any():
-        i = int(np.argmax(d))
-        raise RecordingError(f"{path}: {what}a gap of {d[i]:.3g} s between {t[i]:g} s and {t[i + 1]:g} s "
-                             f"(longer than --max-gap {max_gap:g} s)")
-
-
-def _joints(path: Path, robot: RobotSpec, cols: JointColumns, max_gap: float) -> tuple[np.ndarray, np.ndarray]:
-    """Times ``(S,)`` and unwrapped joint angles ``(S, d)`` in radians."""
-    header, rows = _read_csv(path)
-    names = [cols.time] + [cols.column(j) for j in robot.joint_names]
-    a = _numbers(path, header, rows, names)
+def read_csv_recording(name: str, joints_csv: Path, landmarks_csv: Path | None, robot: RobotSpec,
+                       cols: JointColumns | None = None) -> RawRecording:
+    """One demonstration's CSV files as a ``RawRecording``: the joints in ``robot``'s order and
+    radians (unwrapped, as recorded otherwise), each landmark's readings as written."""
+    cols = cols or JointColumns()
+    header, rows, lines = _read_csv(joints_csv)
+    joints = [cols.column(j) for j in robot.joint_names]
+    a = _numbers(joints_csv, header, rows, lines, [cols.time, *joints], missing_ok=set(joints))
     t, q = a[:, 0], a[:, 1:]
-    _check_times(path, t, max_gap)
     if cols.degrees:
         q = np.deg2rad(q)
-    return t, np.unwrap(q, axis=0)
-
-
-def _landmark_tracks(path: Path, T_base_frame: np.ndarray, max_gap: float) -> dict:
-    """``{name: (times (K,), T_base_landmark (K, 4, 4))}`` from a landmark CSV."""
-    header, rows = _read_csv(path)
+    ok = np.isfinite(q).all(axis=1)
+    q[ok] = np.unwrap(q[ok], axis=0)  # across missing rows too
+    if landmarks_csv is None:
+        raise RecordingError(f"{joints_csv}: no landmark recording beside it ({name}/landmarks.csv or "
+                             f"{name}_landmarks.csv)")
+    header, rows, llines = _read_csv(landmarks_csv)
     if "name" not in header:
-        raise RecordingError(f"{path}: missing column(s) ['name'] (header: {header})")
+        raise RecordingError(f"{landmarks_csv}: missing column(s) ['name'] (header: {header})")
     k = header.index("name")
-    a = _numbers(path, header, rows, [c for c in LANDMARK_COLUMNS if c != "name"])
-    names = np.array([r[k].strip() if k < len(r) else "" for r in rows])
+    pose_cols = [c for c in LANDMARK_COLUMNS if c not in ("time", "name")]
+    a = _numbers(landmarks_csv, header, rows, llines, ["time", *pose_cols], missing_ok=set(pose_cols))
+    names = np.array([r[k].strip() for r in rows])
     if (names == "").any():
-        raise RecordingError(f"{path}: row {int(np.flatnonzero(names == '')[0]) + 2}: empty landmark name")
-    norm = np.linalg.norm(a[:, 4:8], axis=1)
-    if (np.abs(norm - 1) > QUAT_TOLERANCE).any():
-        i = int(np.argmax(np.abs(norm - 1)))
-        raise RecordingError(f"{path}: row {i + 2}: quaternion (qx, qy, qz, qw) has norm {norm[i]:.4g}, "
-                             f"not 1 (within {QUAT_TOLERANCE:g})")
+        raise RecordingError(f"{landmarks_csv}: row {int(llines[np.flatnonzero(names == '')[0]])}: empty landmark name")
     tracks = {}
-    for name in dict.fromkeys(names.tolist()):  # in order of first appearance
-        sel = np.flatnonzero(names == name)
-        t = a[sel, 0]
-        _check_times(path, t, max_gap, what=f"landmark {name!r}: ", rows=sel)
-        T = np.tile(np.eye(4), (len(sel), 1, 1))
-        T[:, :3, :3] = Rotation.from_quat(a[sel, 4:8] / norm[sel, None]).as_matrix()
-        T[:, :3, 3] = a[sel, 1:4]
-        tracks[name] = (t, T_base_frame @ T)
-        # at the readings' own times: resampled, a one-reading glitch is averaged under the limit
-        # (a landmark in the wrong unit is named first: it also "jumps")
-        raw = tracks[name][1][:, None]  # (K, 1, 4, 4)
-        why = far_landmark(raw, [name]) or (jumping_landmark(raw, [name], np.diff(t)) if len(t) > 1 else None)
-        if why:
-            raise RecordingError(f"{path}: in its readings, {why}")
-    return tracks
+    for lm in dict.fromkeys(names.tolist()):  # in order of first appearance
+        sel = np.flatnonzero(names == lm)
+        tracks[lm] = RawTrack(t=a[sel, 0], pose=a[sel, 1:], where=llines[sel])
+    return RawRecording(name=name, t=t, q=q, tracks=tracks, joint_source=str(joints_csv),
+                        landmark_source=str(landmarks_csv), joint_where=lines, unit="row")
 
 
-def _at_times(path: Path, name: str, track, t: np.ndarray, max_gap: float) -> np.ndarray:
+def _at_times(source: str, name: str, track: CleanTrack, t: np.ndarray, max_gap: float) -> np.ndarray:
     """A landmark's poses ``(S, 4, 4)`` at the times ``t``: interpolated between its readings,
     held before the first and after the last (each within ``max_gap`` of the demonstration)."""
-    tt, T = track
-    if len(tt) > 1 and (tt[0] > t[0] + max_gap or tt[-1] < t[-1] - max_gap):
-        raise RecordingError(f"{path}: landmark {name!r} is read from {tt[0]:g} s to {tt[-1]:g} s, not within "
+    tt, T = track.t, track.T_base_landmark
+    first, last = track.span
+    if len(tt) > 1 and (first > t[0] + max_gap or last < t[-1] - max_gap):
+        raise RecordingError(f"{source}: landmark {name!r} is read from {first:g} s to {last:g} s, not within "
                              f"--max-gap {max_gap:g} s of the demonstration's {t[0]:g}-{t[-1]:g} s")
     out = np.tile(np.eye(4), (len(t), 1, 1))
     if len(tt) == 1:
@@ -322,77 +354,159 @@ def _frame(T_base_frame) -> np.ndarray:
     return T
 
 
-def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: TaskSpec | None = None,
-                      columns: JointColumns | None = None, T_base_frame=None, max_gap: float = 0.5,
-                      trim: float = 0.0) -> tuple[DemoSet, list[dict]]:
-    """Every recording under ``root`` (``find_recordings``) as one ``DemoSet`` sampled at ``rate``
-    Hz, and a report per demonstration (its samples before and after, the seconds trimmed, its
-    landmarks held still or tracked). ``T_base_frame (4, 4)``: the landmark CSVs' frame in the
-    robot's base frame, a rigid transform (default: they are in the base frame). ``task``: the
-    set's task, whose ``dt`` must be the samples' ``1 / rate``. ``RecordingError`` on bad input."""
+@dataclass(frozen=True)
+class ImportSettings:
+    """How recordings become a demonstration set.
+
+    rate : samples per second after resampling (Hz).
+    max_gap : the longest time (s) allowed between two readings kept (dropouts bridged included).
+    trim : leave out the start (end) while every joint stays within ``trim`` rad of where it
+        starts (ends); 0 keeps everything.
+    dropouts : ``'bridge'`` (missing readings are left out and bridged) or ``'refuse'``.
+    outliers : ``'drop'`` (an impossible jump is dropped and reported) or ``'refuse'``.
+    smooth : the Savitzky-Golay window (s) for tracked landmarks; 0: not smoothed.
+    T_base_frame : (4, 4) the landmark readings' frame in the robot's base frame (None: the base).
+    task : the set's task, whose ``dt`` must be ``1 / rate`` (None: none).
+    """
+
+    rate: float = 10.0
+    max_gap: float = 0.5
+    trim: float = 0.0
+    dropouts: str = "bridge"
+    outliers: str = "drop"
+    smooth: float = 0.0
+    T_base_frame: np.ndarray | None = None
+    task: TaskSpec | None = None
+
+    def __post_init__(self):
+        if not all(is_real(v) for v in (self.rate, self.max_gap, self.trim, self.smooth)):
+            raise RecordingError(f"rate, max_gap, trim and smooth must be numbers, got {self.rate!r}, "
+                                 f"{self.max_gap!r}, {self.trim!r}, {self.smooth!r}")
+        if not (math.isfinite(self.rate) and self.rate > 0) or not self.max_gap > 0 or not self.trim >= 0 \
+                or not (math.isfinite(self.smooth) and self.smooth >= 0):
+            raise RecordingError(f"rate and max_gap must be positive, trim and smooth >= 0, got {self.rate}, "
+                                 f"{self.max_gap}, {self.trim}, {self.smooth}")
+        if self.dropouts not in DROPOUT_MODES or self.outliers not in OUTLIER_MODES:
+            raise RecordingError(f"dropouts must be one of {DROPOUT_MODES} and outliers one of {OUTLIER_MODES}, "
+                                 f"got {self.dropouts!r}, {self.outliers!r}")
+        if self.task is not None and not isinstance(self.task, TaskSpec):
+            raise TypeError(f"task must be a TaskSpec or None (lfd.learning.tasks.task_from_name), got {self.task!r}")
+        why = other_task_dt(self.task.dt, 1.0 / self.rate) if self.task is not None else None
+        if why:  # the model would plan at task.dt with steps learned from samples 1 / rate apart
+            raise RecordingError(f"task {self.task.name!r}: {why}; at rate={self.rate:g} Hz the samples are "  # type: ignore[union-attr]
+                                 f"{1.0 / self.rate:g} s apart")
+        object.__setattr__(self, "T_base_frame", np.eye(4) if self.T_base_frame is None else _frame(self.T_base_frame))
+
+
+def _joint_samples(raw: RawRecording, robot: RobotSpec, limits, settings: ImportSettings) -> CleanJoints:
+    """The joints cleaned (``lfd.io.cleaning.clean_joints``), moved into and checked against the limits."""
+    lower, upper = limits
+    joints = clean_joints(raw.t, raw.q, raw.joint_where, raw.joint_source, raw.unit, settings.max_gap,
+                          settings.dropouts)
+    q = _into_limits(joints.q, lower, upper)
+    out = (q < lower - LIMIT_TOLERANCE) | (q > upper + LIMIT_TOLERANCE)
+    if out.any():
+        i, j = (int(x) for x in np.argwhere(out)[0])
+        row = int(raw.joint_where[np.flatnonzero(raw.t == joints.t[i])[-1]])
+        raise RecordingError(f"{raw.joint_source}: {raw.unit} {row}: joint {robot.joint_names[j]} = {q[i, j]:.4g} rad "
+                             f"is outside its URDF limits [{lower[j]:.4g}, {upper[j]:.4g}]")
+    return CleanJoints(joints.t, q, joints.report)
+
+
+def _one_demo(raw: RawRecording, robot: RobotSpec, limits, settings: ImportSettings, names):
+    """``(Demonstration, report dict, landmark names)`` of one recording."""
+    joints = _joint_samples(raw, robot, limits, settings)
+    t_raw, q_raw = joints.t, joints.q
+    tracks = {n: clean_track(n, tr.t, tr.pose, tr.where, raw.landmark_source, raw.unit, settings.T_base_frame,
+                             settings.max_gap, settings.dropouts, settings.outliers, settings.smooth)
+              for n, tr in raw.tracks.items()}
+    if not tracks:
+        raise RecordingError(f"{raw.landmark_source or raw.name}: no landmark readings")
+    if names is not None and set(tracks) != set(names):
+        raise RecordingError(f"{raw.landmark_source}: landmarks {sorted(tracks)} differ from the first recording's "
+                             f"{sorted(names)}")
+    names = tuple(tracks) if names is None else names
+    keep = _trim(q_raw, settings.trim) if settings.trim else slice(0, len(t_raw))
+    if keep is None:
+        span = float(np.abs(q_raw - q_raw[0]).max())
+        raise RecordingError(f"{raw.joint_source}: no motion is left once the pauses are trimmed with a tolerance of "
+                             f"{settings.trim:g} rad (no joint moves more than {span:.3g} rad from where it "
+                             "starts): lower --trim-pauses")
+    t0, t1 = t_raw[keep][0], t_raw[keep][-1]
+    if t1 - t0 > MAX_DEMO_S:  # (a stray time stamp within a huge --max-gap asked for terabytes)
+        raise RecordingError(f"{raw.joint_source}: the joints' readings span {t1 - t0:.4g} s, more than a "
+                             f"demonstration of {MAX_DEMO_S:g} s: a time stamp is off (in another unit?)")
+    rate = settings.rate
+    t = t0 + np.arange(int(math.floor((t1 - t0) * rate + 1e-9)) + 1) / rate  # (S,)
+    if len(t) < 2:  # was reported as an arm that never moved
+        raise RecordingError(f"{raw.joint_source}: {len(t_raw)} reading(s) over {t1 - t0:.3g} s, shorter than one "
+                             f"sample interval at {rate:g} Hz: record longer or raise --rate")
+    q = np.stack([np.interp(t, t_raw, q_raw[:, j]) for j in range(q_raw.shape[1])], axis=1)
+    # (S, Z, 4, 4): interpolated between readings already checked for their distance and speed
+    poses = np.stack([_at_times(raw.landmark_source, n, tracks[n], t, settings.max_gap) for n in names], axis=1)
+    still = all(len(tracks[n].t) == 1 for n in names)
+    origin = float(raw.t[0])  # the report's times are from the recording's first joint reading
+    report = {"name": raw.name, "raw_samples": len(raw.t), "samples": len(t),
+              "trimmed_start_s": round(float(t0 - t_raw[0]), 3), "trimmed_end_s": round(float(t_raw[-1] - t1), 3),
+              "start_s": round(float(t0) - origin, 6), "end_s": round(float(t_raw[-1]) - origin, 6),
+              "landmarks": "held still" if still else "tracked",
+              "joints": {**joints.report.as_dict(),
+                         "dropout_times": [round(x - origin, 4) for x in joints.report.dropout_times]},
+              "tracks": {n: {**tracks[n].report.as_dict(),
+                             "dropout_times": [round(x - origin, 4) for x in tracks[n].report.dropout_times],
+                             "outlier_times": [round(x - origin, 4) for x in tracks[n].report.outlier_times]}
+                         for n in names}}
+    demo = Demonstration(q=q, dt=1.0 / rate, landmarks=poses[0] if still else poses, name=raw.name)
+    return demo, report, names
+
+
+def import_raw(raws, robot: RobotSpec, settings: ImportSettings, source: str = "") -> tuple[DemoSet, list[dict]]:
+    """Recordings read from any source (``RawRecording``, e.g. ``read_csv_recording`` or
+    ``lfd.io.rosbag.read_bag``) as one ``DemoSet`` sampled at ``settings.rate``, and a report per
+    demonstration: its samples before and after, the seconds trimmed, and what the cleaning did to
+    the joints and to each landmark (``lfd.io.cleaning``: dropouts bridged, repeated and
+    near-simultaneous readings merged, outliers dropped, the tracker's rate, jitter, smoothing).
+    ``source`` names the recordings in messages about the whole set. ``RecordingError`` on bad input."""
     if not isinstance(robot, RobotSpec):  # a name gave an AttributeError deep in the column check
         raise TypeError(f"robot must be a RobotSpec (e.g. lfd.robot.robots.BAXTER_LEFT), got {robot!r}")
-    if task is not None and not isinstance(task, TaskSpec):
-        raise TypeError(f"task must be a TaskSpec or None (lfd.learning.tasks.task_from_name), got {task!r}")
+    if not isinstance(settings, ImportSettings):
+        raise TypeError(f"settings must be an ImportSettings, got {type(settings).__name__}")
+    raws = list(raws)
+    if not raws:
+        raise RecordingError(f"{source}: no recordings")
+    for raw in raws:
+        if raw.q.shape[1] != len(robot.joint_names):
+            raise RecordingError(f"{raw.joint_source}: {raw.q.shape[1]} joint columns, robot {robot.name!r} has "
+                                 f"{len(robot.joint_names)}")
+    limits = _limits(robot)
+    demos, report, names = [], [], None
+    for raw in raws:
+        demo, rep, names = _one_demo(raw, robot, limits, settings, names)
+        demos.append(demo)
+        report.append(rep)
+    assert names is not None
+    why = unusable_demos([d.q for d in demos], [d.name for d in demos])
+    if why:
+        raise RecordingError(f"{source}: {why}")
+    ds = DemoSet(demos=tuple(demos), joint_names=robot.joint_names, landmark_names=names, robot=robot,
+                 task=settings.task)
+    return ds, report
+
+
+def import_recordings(root: str | Path, robot: RobotSpec, rate: float, task: TaskSpec | None = None,
+                      columns: JointColumns | None = None, T_base_frame=None, max_gap: float = 0.5,
+                      trim: float = 0.0, dropouts: str = "bridge", outliers: str = "drop",
+                      smooth: float = 0.0) -> tuple[DemoSet, list[dict]]:
+    """Every CSV recording under ``root`` (``find_recordings``) as one ``DemoSet`` (``import_raw``;
+    the arguments are ``ImportSettings``'s). ``columns``: how the joint CSVs name their columns."""
+    if not isinstance(robot, RobotSpec):
+        raise TypeError(f"robot must be a RobotSpec (e.g. lfd.robot.robots.BAXTER_LEFT), got {robot!r}")
     if columns is not None and not isinstance(columns, JointColumns):  # a dict: AttributeError on .check
         raise TypeError(f"columns must be a JointColumns (JointColumns(joints={{...}}) for a mapping), got "
                         f"{type(columns).__name__}")
-    if not all(is_real(v) for v in (rate, max_gap, trim)):  # strings: Python's TypeError from a comparison
-        raise RecordingError(f"rate, max_gap and trim must be numbers, got {rate!r}, {max_gap!r}, {trim!r}")
-    if not (math.isfinite(rate) and rate > 0) or not max_gap > 0 or not trim >= 0:
-        raise RecordingError(f"rate and max_gap must be positive and trim >= 0, got {rate}, {max_gap}, {trim}")
-    why = other_task_dt(task.dt, 1.0 / rate) if task is not None else None
-    if why:  # the model would plan at task.dt with steps learned from samples 1 / rate apart
-        raise RecordingError(f"task {task.name!r}: {why}; at rate={rate:g} Hz the samples are "  # type: ignore[union-attr]
-                             f"{1.0 / rate:g} s apart")
+    settings = ImportSettings(rate=rate, max_gap=max_gap, trim=trim, dropouts=dropouts, outliers=outliers,
+                              smooth=smooth, T_base_frame=T_base_frame, task=task)
     columns = columns or JointColumns()
     columns.check(robot)
-    T_base_frame = np.eye(4) if T_base_frame is None else _frame(T_base_frame)
-    lower, upper = _limits(robot)
-    demos, report, names = [], [], None
-    for name, jpath, lpath in find_recordings(root):
-        t_raw, q_raw = _joints(jpath, robot, columns, max_gap)
-        q_raw = _into_limits(q_raw, lower, upper)
-        out = (q_raw < lower - LIMIT_TOLERANCE) | (q_raw > upper + LIMIT_TOLERANCE)
-        if out.any():
-            i, j = (int(x) for x in np.argwhere(out)[0])
-            raise RecordingError(f"{jpath}: row {i + 2}: joint {robot.joint_names[j]} = {q_raw[i, j]:.4g} rad is "
-                                 f"outside its URDF limits [{lower[j]:.4g}, {upper[j]:.4g}]")
-        if lpath is None:
-            raise RecordingError(f"{jpath}: no landmark recording beside it ({name}/landmarks.csv or "
-                                 f"{name}_landmarks.csv)")
-        tracks = _landmark_tracks(lpath, T_base_frame, max_gap)
-        if names is None:
-            names = tuple(tracks)
-        elif set(tracks) != set(names):
-            raise RecordingError(f"{lpath}: landmarks {sorted(tracks)} differ from the first recording's "
-                                 f"{sorted(names)}")
-        keep = _trim(q_raw, trim) if trim else slice(0, len(t_raw))
-        if keep is None:
-            span = float(np.abs(q_raw - q_raw[0]).max())
-            raise RecordingError(f"{jpath}: no motion is left once the pauses are trimmed with a tolerance of "
-                                 f"{trim:g} rad (no joint moves more than {span:.3g} rad from where it "
-                                 "starts): lower --trim-pauses")
-        t0, t1 = t_raw[keep][0], t_raw[keep][-1]
-        if t1 - t0 > MAX_DEMO_S:  # (a stray time stamp within a huge --max-gap asked for terabytes)
-            raise RecordingError(f"{jpath}: the joints' readings span {t1 - t0:.4g} s, more than a demonstration "
-                                 f"of {MAX_DEMO_S:g} s: a time stamp is off (in another unit?)")
-        t = t0 + np.arange(int(math.floor((t1 - t0) * rate + 1e-9)) + 1) / rate  # (S,)
-        if len(t) < 2:  # was reported as an arm that never moved
-            raise RecordingError(f"{jpath}: {len(t_raw)} reading(s) over {t1 - t0:.3g} s, shorter than one "
-                                 f"sample interval at {rate:g} Hz: record longer or raise --rate")
-        q = np.stack([np.interp(t, t_raw, q_raw[:, j]) for j in range(q_raw.shape[1])], axis=1)
-        # (S, Z, 4, 4): positions interpolated linearly between readings already checked for their
-        # distance and speed (_landmark_tracks), so the samples are no farther and no faster
-        poses = np.stack([_at_times(lpath, n, tracks[n], t, max_gap) for n in names], axis=1)
-        still = all(len(tracks[n][0]) == 1 for n in names)
-        demos.append(Demonstration(q=q, dt=1.0 / rate, landmarks=poses[0] if still else poses, name=name))
-        report.append({"name": name, "raw_samples": len(t_raw), "samples": len(t),
-                       "trimmed_start_s": round(float(t0 - t_raw[0]), 3), "trimmed_end_s": round(float(t_raw[-1] - t1), 3),
-                       "landmarks": "held still" if still else "tracked"})
-    assert names is not None  # find_recordings found at least one
-    why = unusable_demos([d.q for d in demos], [d.name for d in demos])
-    if why:
-        raise RecordingError(f"{root}: {why}")
-    ds = DemoSet(demos=tuple(demos), joint_names=robot.joint_names, landmark_names=names, robot=robot, task=task)
-    return ds, report
+    raws = [read_csv_recording(name, jpath, lpath, robot, columns) for name, jpath, lpath in find_recordings(root)]
+    return import_raw(raws, robot, settings, str(root))

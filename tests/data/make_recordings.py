@@ -4,8 +4,10 @@ Made by the project (no real recording is shipped): ``lfd.learning.synthetic.mak
 with a hand that travels 0.4 m during each demonstration (the task point meets it), then
 written as a Baxter SDK joint recorder and a tracker would: joints at ~50 Hz with timing jitter,
 noise, dropped rows and pauses at both ends, in ``time,left_s0,...,right_w2,right_gripper``
-columns; the hand tracked at 30 Hz and the two other landmarks (a head, a table marker) read
-once, as ``time,name,x,y,z,qx,qy,qz,qw`` rows. Run ``python tests/data/make_recordings.py``
+columns; the hand tracked by a skeleton tracker at 30 Hz and written as a recorder does
+(``_tracker_rows``: stamped with the recorder's clock, repeats, new readings microseconds after a
+repeat, all-zero dropouts, about 1 cm of jitter per axis, one glitch), the two other landmarks
+(a head, a table marker) read once, as ``time,name,x,y,z,qx,qy,qz,qw`` rows. Run ``python tests/data/make_recordings.py``
 to write it again (deterministic).
 """
 
@@ -50,23 +52,54 @@ def main() -> None:
                 w.writerow([f"{t[k] + 1000.0:.4f}", *(f"{x:.5f}" for x in q[k]), "100.0",
                             *(f"{x:.5f}" for x in right[k]), "0.0"])
         lm = d.landmarks  # (S, Z, 4, 4), the hand (index 0) tracked
-        tt = np.arange(0.0, t[-1] + 0.02, 1 / 30) + 1000.0
-        tcl = np.clip(tt - 1000.0 - pause, 0.0, t_demo[-1])
+        rows = _tracker_rows(rng, t + 1000.0, lm, t_demo, pause, glitch=(m == 2))
         with (folder / "landmarks.csv").open("w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(["time", "name", "x", "y", "z", "qx", "qy", "qz", "qw"])
-            for z, name in enumerate(NAMES):
-                if z == 0:
-                    pos = np.stack([np.interp(tcl, t_demo, lm[:, 0, i, 3]) for i in range(3)], axis=1)
-                    pos += rng.normal(0, 0.002, pos.shape)
-                    quat = Rotation.from_matrix(lm[0, 0, :3, :3]).as_quat()
-                    for k in range(len(tt)):
-                        w.writerow([f"{tt[k]:.4f}", name, *(f"{x:.5f}" for x in pos[k]), *(f"{x:.6f}" for x in quat)])
-                else:
-                    quat = Rotation.from_matrix(lm[0, z, :3, :3]).as_quat()
-                    w.writerow(["1000.0000", name, *(f"{x:.5f}" for x in lm[0, z, :3, 3]), *(f"{x:.6f}" for x in quat)])
+            w.writerows(rows)
     (OUT / "TRUTH.txt").write_text(f"tool point (gripper frame, m): {np.round(truth.tool, 4).tolist()}\n"
                                    "the task point meets the landmark 'hand'\n")
+
+
+def _tracker_rows(rng, recorder_t, lm, t_demo, pause, glitch: bool) -> list[list[str]]:
+    """The landmark CSV's rows as a recorder writes them: the hand from a skeleton tracker at
+    30 Hz with about 1 cm of jitter per axis, each recorder row (``recorder_t``, ~50 Hz) stamped
+    with the recorder's clock and holding the tracker's latest reading (repeats), a new reading
+    often written 7 us after a repeat of the old one, 3% of the rows all-zero dropouts (some in
+    bursts), and with ``glitch`` one tracker frame 0.6 m off (another person's hand); the head
+    and the table marker read once."""
+    tt = np.arange(recorder_t[0] - 1000.0 - 0.05, recorder_t[-1] - 1000.0 + 0.05, 1 / 30)  # the tracker's frames
+    tcl = np.clip(tt - pause, 0.0, t_demo[-1])
+    pos = np.stack([np.interp(tcl, t_demo, lm[:, 0, i, 3]) for i in range(3)], axis=1)
+    pos += rng.normal(0, 0.01, pos.shape)
+    if glitch:
+        pos[len(pos) // 2] += [0.0, 0.6, 0.0]
+    quat = Rotation.from_matrix(lm[0, 0, :3, :3]).as_quat()
+    arrival = tt + 1000.0 + rng.uniform(0.004, 0.012, len(tt))  # when each frame reaches the recorder
+    drop = rng.random(len(recorder_t)) < 0.02
+    for start in rng.choice(len(recorder_t) - 5, 2, replace=False):  # two bursts of a lost track
+        drop[start:start + 4] = True
+
+    def row(stamp, k):
+        return [f"{stamp:.6f}", "hand", *(f"{x:.5f}" for x in pos[k]), *(f"{x:.6f}" for x in quat)]
+
+    out, last = [], -1
+    for j, r in enumerate(recorder_t):
+        k = int(np.searchsorted(arrival, r, side="right")) - 1  # the newest frame arrived by now
+        if k < 0:
+            continue
+        if drop[j]:
+            out.append([f"{r:.6f}", "hand", *["0.0"] * 7])
+        elif k != last and last >= 0 and rng.random() < 0.5:  # the old reading, then the new one 7 us later
+            out.append(row(r, last))
+            out.append(row(r + 7e-6, k))
+        else:
+            out.append(row(r, k))
+        last = k
+    for z, name in ((1, "head"), (2, "table_marker")):
+        q = Rotation.from_matrix(lm[0, z, :3, :3]).as_quat()
+        out.append(["1000.000000", name, *(f"{x:.5f}" for x in lm[0, z, :3, 3]), *(f"{x:.6f}" for x in q)])
+    return out
 
 
 if __name__ == "__main__":
