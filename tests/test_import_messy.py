@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from helpers import run_cli
+
 from lfd.io.cleaning import clean_joints, clean_track, jitter_mm
 from lfd.io.import_csv import main
 from lfd.io.raw import RecordingError

@@ -59,7 +59,8 @@ class RawRecording:
         NaN: a reading the recorder missed).
     tracks : ``{landmark name: RawTrack}`` in the order the landmarks were first read.
     joint_source, landmark_source : what to name in messages (the file or ``bag:topic``).
-    joint_where : (S,) the source's index of each joint reading (CSV row, message number).
+    joint_where : (S,) the source's index of each joint reading (CSV row, message number);
+        empty: rows 2, 3, ... (a CSV with a header).
     unit : what ``where`` counts, for messages: ``'row'`` or ``'message'``.
     """
 
@@ -69,7 +70,7 @@ class RawRecording:
     tracks: dict = field(default_factory=dict)
     joint_source: str = ""
     landmark_source: str = ""
-    joint_where: np.ndarray | None = None
+    joint_where: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
     unit: str = "row"
 
     def __post_init__(self):
@@ -78,7 +79,9 @@ class RawRecording:
         if q.ndim != 2 or len(q) != len(t):
             raise ValueError(f"RawRecording {self.name!r}: q must be (S, d) with S = len(t) = {len(t)}, "
                              f"got {q.shape}")
-        where = np.arange(len(t)) + 2 if self.joint_where is None else np.asarray(self.joint_where, dtype=np.int64)
+        where = np.asarray(self.joint_where, dtype=np.int64).reshape(-1)
+        if len(where) == 0:
+            where = np.arange(len(t), dtype=np.int64) + 2
         if len(where) != len(t):
             raise ValueError(f"RawRecording {self.name!r}: joint_where has {len(where)} entries, t {len(t)}")
         if not all(isinstance(v, RawTrack) for v in self.tracks.values()):

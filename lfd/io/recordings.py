@@ -173,8 +173,9 @@ def find_recordings(root: str | Path) -> list[tuple[str, Path, Path | None]]:
     for low, f in top.items():
         if low.endswith("_joints.csv"):
             name = f.name[: -len("_joints.csv")]
-            found.append((name, regular(f, "the joint recording"),
-                          regular(top.get(f"{name.lower()}_landmarks.csv"), "the landmark recording")))
+            joints = regular(f, "the joint recording")
+            assert joints is not None  # (f exists)
+            found.append((name, joints, regular(top.get(f"{name.lower()}_landmarks.csv"), "the landmark recording")))
         elif low.endswith("_landmarks.csv"):
             if low[: -len("_landmarks.csv")] + "_joints.csv" not in top:
                 raise RecordingError(f"{f}: a landmark recording without its joint recording "
@@ -365,7 +366,8 @@ class ImportSettings:
     dropouts : ``'bridge'`` (missing readings are left out and bridged) or ``'refuse'``.
     outliers : ``'drop'`` (an impossible jump is dropped and reported) or ``'refuse'``.
     smooth : the Savitzky-Golay window (s) for tracked landmarks; 0: not smoothed.
-    T_base_frame : (4, 4) the landmark readings' frame in the robot's base frame (None: the base).
+    T_base_frame : (4, 4) the landmark readings' frame in the robot's base frame (default, or
+        None: the base itself).
     task : the set's task, whose ``dt`` must be ``1 / rate`` (None: none).
     """
 
@@ -375,7 +377,7 @@ class ImportSettings:
     dropouts: str = "bridge"
     outliers: str = "drop"
     smooth: float = 0.0
-    T_base_frame: np.ndarray | None = None
+    T_base_frame: np.ndarray = field(default_factory=lambda: np.eye(4))
     task: TaskSpec | None = None
 
     def __post_init__(self):
