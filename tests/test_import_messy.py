@@ -244,3 +244,15 @@ def test_the_truncated_row_is_named_as_truncated(tmp_path):
     n = len(path.read_text().splitlines())
     with pytest.raises(RecordingError, match=rf"joints.csv: row {n} has \d+ fields, the header 17: fewer \(a truncated"):
         import_recordings(src, BAXTER_LEFT, 10.0)
+
+
+def test_files_on_clocks_that_disagree_are_named_as_such(tmp_path):
+    src = tmp_path / "rec"
+    shutil.copytree(DATA, src)
+    path = src / "demo_02" / "landmarks.csv"
+    rows = list(csv.reader(path.open()))
+    rows[1:] = [[f"{float(r[0]) - 1000.0:.6f}", *r[1:]] for r in rows[1:]]  # stamped from 0, the joints from 1000
+    csv.writer(path.open("w", newline="")).writerows(rows)
+    with pytest.raises(RecordingError, match=r"demo_02/landmarks.csv: landmark 'hand' is read from .* the two files' "
+                                             r"clocks disagree"):
+        import_recordings(src, BAXTER_LEFT, 10.0)

@@ -291,8 +291,10 @@ def _at_times(source: str, name: str, track: CleanTrack, t: np.ndarray, max_gap:
     tt, T = track.t, track.T_base_landmark
     first, last = track.span
     if len(tt) > 1 and (first > t[0] + max_gap or last < t[-1] - max_gap):
+        clocks = (" and never while the joints are: the two files' clocks disagree (another clock, or another "
+                  "unit)?" if first > t[-1] or last < t[0] else "")
         raise RecordingError(f"{source}: landmark {name!r} is read from {first:g} s to {last:g} s, not within "
-                             f"--max-gap {max_gap:g} s of the demonstration's {t[0]:g}-{t[-1]:g} s")
+                             f"--max-gap {max_gap:g} s of the demonstration's {t[0]:g}-{t[-1]:g} s{clocks}")
     out = np.tile(np.eye(4), (len(t), 1, 1))
     if len(tt) == 1:
         out[:] = T[0]
