@@ -14,7 +14,7 @@ $(STAMP): setup.py constraints.txt lfd/__init__.py
 	$(PY) -m pip install --disable-pip-version-check -q -c constraints.txt torch==2.13.0
 	# the distribution was called lfd before it became lfd-landmarks (the name lfd on PyPI is another project's)
 	$(PY) -m pip uninstall --disable-pip-version-check -q -y lfd 2>/dev/null || true
-	$(PY) -m pip install --disable-pip-version-check -q -c constraints.txt -e ".[sim,test,ray]"
+	$(PY) -m pip install --disable-pip-version-check -q -c constraints.txt -e ".[sim,test,ray,ros]"
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -57,6 +57,8 @@ setup(
                  "mypy>=1.10"],
         # evaluation sweeps as Ray tasks (lfd-plan --evaluate --executor ray)
         "ray": ["ray>=2.9"],
+        # lfd-import reads ROS 1 bags, ROS 2 bags and MCAP files (lfd.io.rosbag; pure Python, no ROS install)
+        "ros": ["rosbags>=0.10"],
     },
     entry_points={
         "console_scripts": CONSOLE_SCRIPTS,

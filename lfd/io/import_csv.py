@@ -1,11 +1,15 @@
-"""``lfd-import`` (``python -m lfd.io.import_csv``): recorded CSV demonstrations into a demonstration set.
+"""``lfd-import`` (``python -m lfd.io.import_csv``): recorded demonstrations (CSV files, ROS 1 and ROS 2
+bags, MCAP files) into a demonstration set.
 
     lfd-import RECORDINGS --out DIR --task NAME [--rate HZ] [--time-steps T] [--reference LANDMARK]
                [--robot NAME | --robot-json FILE] [--columns MAPPING.json] [--frame-pose X Y Z QX QY QZ QW]
                [--max-gap S] [--trim-pauses RAD] [--dropouts bridge|refuse] [--outliers drop|refuse]
                [--smooth SECONDS] [--no-plot]
+               [--joint-topic TOPIC --landmark-frames A,B --base-frame F --landmark-topics NAME=TOPIC,...
+                --split-on-pause S]        (bags: lfd.io.rosbag)
 
-The formats are ``lfd.io.recordings``'s. The set is written into a new folder beside ``--out``
+The CSV formats are ``lfd.io.recordings``'s, the bags ``lfd.io.rosbag``'s; both are cleaned and
+resampled the same way (``lfd.io.recordings.import_raw``). The set is written into a new folder beside ``--out``
 and checked by loading it (``lfd.learning.demos.load_demos``) before it takes ``--out``'s name,
 so a refused recording leaves nothing half-written. ``--out`` must not exist yet. Beside the
 set go ``import_report.json`` (what the cleaning did to each demonstration and landmark) and
@@ -26,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from lfd.cli import ArgumentParser, UsageError, check_task_name, path_arg, run_main, writable_dir
+from lfd.io.rosbag import add_bag_arguments, bag_options_given, is_bag_input, raws_from_args
 from lfd.learning.tasks import MAX_DT
 
 __all__ = ["PLOT", "PROG", "REPORT", "build_parser", "cli", "main", "report_lines"]
@@ -40,7 +45,8 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
     p = ArgumentParser(prog=prog, description="Turn recorded demonstrations (joint and landmark CSVs, one folder "
                                               "or file pair per demonstration) into an lfd demonstration set.")
     p.add_argument("recordings", type=path_arg, metavar="RECORDINGS",
-                   help="folder of DEMO/joints.csv + DEMO/landmarks.csv, or DEMO_joints.csv + DEMO_landmarks.csv")
+                   help="folder of DEMO/joints.csv + DEMO/landmarks.csv, or DEMO_joints.csv + DEMO_landmarks.csv; or a "
+                        "ROS bag, an MCAP file, a ROS 2 bag folder, or a folder of those (one per demonstration)")
     p.add_argument("--out", type=path_arg, required=True, metavar="DIR", help="the demonstration set to write (new folder)")
     p.add_argument("--task", required=True, metavar="NAME", help="the task's name, written to task.json")
     p.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="samples per second after resampling")
@@ -74,6 +80,7 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                         "smoothed; the report gives each landmark's jitter)")
     p.add_argument("--no-plot", action="store_true",
                    help="do not draw import.png (what was done to each demonstration) beside the set")
+    add_bag_arguments(p)  # RECORDINGS may be ROS bags (lfd.io.rosbag; the [ros] extra)
     return p
 
 
@@ -108,7 +115,7 @@ def _frame(pose) -> np.ndarray | None:
 
 def main(argv=None, prog: str = PROG) -> int:
     """Import the recordings; 0 on success. ``UsageError`` / ``RecordingError`` on bad input."""
-    from lfd.io.recordings import JointColumns, import_recordings
+    from lfd.io.recordings import ImportSettings, JointColumns, import_raw, import_recordings
     from lfd.learning.demos import load_demos, save_demos
     from lfd.learning.tasks import TaskSpec
 
@@ -126,10 +133,23 @@ def main(argv=None, prog: str = PROG) -> int:
         raise UsageError(f"--rate must be within [{1.0 / MAX_DT:g}, {MAX_RATE:g}] Hz and --time-steps at least 2, "
                          f"got {args.rate}, {args.time_steps}")
     robot = _robot(args)
-    columns = JointColumns.load(args.columns) if args.columns else None
-    ds, report = import_recordings(args.recordings, robot, args.rate, columns=columns, T_base_frame=_frame(args.frame_pose),
-                                   max_gap=args.max_gap, trim=args.trim_pauses, dropouts=args.dropouts,
-                                   outliers=args.outliers, smooth=args.smooth)
+    if is_bag_input(args.recordings):  # ROS bags: read into RawRecordings, then cleaned as the CSVs are
+        notes: list[str] = []
+        raws = raws_from_args(args.recordings, args, robot, notes=notes)
+        for note in notes:
+            print(f"note: {note}")
+        settings = ImportSettings(rate=args.rate, max_gap=args.max_gap, trim=args.trim_pauses, dropouts=args.dropouts,
+                                  outliers=args.outliers, smooth=args.smooth)
+        ds, report = import_raw(raws, robot, settings, str(args.recordings))
+    else:
+        given = bag_options_given(args)
+        if given:
+            raise UsageError(f"{', '.join(given)}: for ROS bags, and {args.recordings} holds CSV recordings")
+        columns = JointColumns.load(args.columns) if args.columns else None
+        ds, report = import_recordings(args.recordings, robot, args.rate, columns=columns,
+                                       T_base_frame=_frame(args.frame_pose), max_gap=args.max_gap,
+                                       trim=args.trim_pauses, dropouts=args.dropouts, outliers=args.outliers,
+                                       smooth=args.smooth)
     short = [(r["name"], r["samples"]) for r in report if r["samples"] < args.time_steps]
     if short:
         raise UsageError(f"{args.recordings}: demonstration(s) {short} have fewer samples at {args.rate:g} Hz than "
@@ -179,7 +199,7 @@ def report_lines(report: list[dict], rate: float) -> list[str]:
     for r in report:  # (later messages name the file, not the recording)
         trimmed = f", trimmed {r['trimmed_start_s']:g} s + {r['trimmed_end_s']:g} s" \
             if r["trimmed_start_s"] or r["trimmed_end_s"] else ""
-        lines.append(f"{r['name']} -> {r['file']}: {r['raw_samples']} rows -> {r['samples']} samples at "
+        lines.append(f"{r['name']} -> {r['file']}: {r['raw_samples']} {r.get('unit', 'row')}s -> {r['samples']} samples at "
                      f"{rate:g} Hz{trimmed}; landmarks {r['landmarks']}")
     joints = [r["joints"] for r in report]
     if any(j["dropouts"] or j["merged"] for j in joints):

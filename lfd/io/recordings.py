@@ -450,7 +450,7 @@ def _one_demo(raw: RawRecording, robot: RobotSpec, limits, settings: ImportSetti
     poses = np.stack([_at_times(raw.landmark_source, n, tracks[n], t, settings.max_gap) for n in names], axis=1)
     still = all(len(tracks[n].t) == 1 for n in names)
     origin = float(raw.t[0])  # the report's times are from the recording's first joint reading
-    report = {"name": raw.name, "raw_samples": len(raw.t), "samples": len(t),
+    report = {"name": raw.name, "raw_samples": len(raw.t), "unit": raw.unit, "samples": len(t),
               "trimmed_start_s": round(float(t0 - t_raw[0]), 3), "trimmed_end_s": round(float(t_raw[-1] - t1), 3),
               "start_s": round(float(t0) - origin, 6), "end_s": round(float(t_raw[-1]) - origin, 6),
               "landmarks": "held still" if still else "tracked",
