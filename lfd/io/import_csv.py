@@ -43,7 +43,8 @@ MAX_RATE = 1000.0  # Hz: resampled faster, a recording is only interpolated (and
 
 def build_parser(prog: str = PROG) -> ArgumentParser:
     p = ArgumentParser(prog=prog, description="Turn recorded demonstrations (joint and landmark CSVs, one folder "
-                                              "or file pair per demonstration) into an lfd demonstration set.")
+                                              "or file pair per demonstration, or ROS bags) into an lfd "
+                                              "demonstration set.")
     p.add_argument("recordings", type=path_arg, metavar="RECORDINGS",
                    help="folder of DEMO/joints.csv + DEMO/landmarks.csv, or DEMO_joints.csv + DEMO_landmarks.csv; or a "
                         "ROS bag, an MCAP file, a ROS 2 bag folder, or a folder of those (one per demonstration)")
