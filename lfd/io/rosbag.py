@@ -7,13 +7,14 @@ ROS installation; the ``[ros]`` extra: ``pip install ".[ros]"``).
   grippers) are ignored. A message naming some but not all of the robot's joints is a row of NaN
   (a dropout, counted by the cleaning); one naming none of them (another publisher's on the same
   topic, a gripper's) is no reading of the arm and is skipped.
-* **Landmarks from tf** (``landmark_frames``): the transforms of ``/tf`` and ``/tf_static`` are kept
-  per edge (parent -> child frame). A landmark frame is chained to ``base_frame`` through their
-  common ancestor in the tf tree (any depth, either direction). It is read whenever a moving
-  transform on its chain is published, at that transform's stamp, with the chain's other moving
-  transforms interpolated at that time (positions linearly, orientations by slerp, as tf2's
-  lookup does) and each static one as last published; only while every moving transform of
-  the chain has readings on both sides. A chain of static transforms only is read once.
+* **Landmarks from tf** (``landmark_frames``, through ``lfd.io.tf_tree``): the transforms of ``/tf``
+  and ``/tf_static`` are kept per edge (parent -> child frame). A landmark frame is chained to
+  ``base_frame`` through their common ancestor in the tf tree (any depth, either direction). It
+  is read whenever a moving transform on its chain is published, at that transform's stamp,
+  with the chain's other moving transforms interpolated at that time (positions linearly,
+  orientations by slerp, as tf2's lookup does) and each static one as last published; only
+  while every moving transform of the chain has readings on both sides. A chain of static
+  transforms only is read once.
 * **Landmarks from topics** (``landmark_topics``, ``{name: topic}``): ``geometry_msgs/PoseStamped``
   poses in their ``header.frame_id``, chained to the base frame through tf at the message's stamp
   when that frame is not the base (a NaN row where tf has no reading at that time).
@@ -42,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from lfd.io.raw import RawRecording, RawTrack, RecordingError
+from lfd.io.tf_tree import TF_TOPICS, TfTree, compose
 
 __all__ = ["BAG_OPTIONS", "PAUSE_TOLERANCE", "add_bag_arguments", "bag_options_given", "find_bags",
            "is_bag_input", "raws_from_args", "read_bag", "split_on_pause"]
@@ -49,7 +51,6 @@ __all__ = ["BAG_OPTIONS", "PAUSE_TOLERANCE", "add_bag_arguments", "bag_options_g
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")  # (ROS 1's old tf package: tf/tfMessage)
-TF_TOPICS = ("/tf", "/tf_static")
 PAUSE_TOLERANCE = 0.02  # rad: --pause-tolerance's default (a joint encoder's noise stays well within)
 # the options add_bag_arguments adds, by their argparse dest (for refusing them with CSV input)
 BAG_OPTIONS = {"joint_topic": "--joint-topic", "landmark_frames": "--landmark-frames", "base_frame": "--base-frame",
@@ -191,73 +192,6 @@ def _joint_topic(bag: Path, types: Mapping[str, str | None], joint_topic: str | 
 
 
 # ---------------------------------------------------------------------------------------------
-# poses as (K, 7) rows x, y, z, qx, qy, qz, qw: composed, inverted and interpolated with NaN kept
-
-
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Quaternion products ``a b`` of ``(K, 4)`` rows ``qx, qy, qz, qw``."""
-    ax, ay, az, aw = a.T
-    bx, by, bz, bw = b.T
-    return np.stack([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz], axis=1)
-
-
-def _unit(q: np.ndarray) -> np.ndarray:
-    with np.errstate(invalid="ignore", divide="ignore"):  # a zero quaternion (a dropout) -> NaN
-        return q / np.linalg.norm(q, axis=1, keepdims=True)
-
-
-def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """The vectors ``v (K, 3)`` rotated by the unit quaternions ``q (K, 4)``."""
-    u, w = q[:, :3], q[:, 3:]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
-
-
-def _compose(T_a_b: np.ndarray, T_b_c: np.ndarray) -> np.ndarray:
-    """``T_a_c (K, 7)``. The quaternions are multiplied as given (a recorded quaternion that is not
-    unit leaves its product not unit, for the cleaning to see); positions use the unit ones."""
-    p = T_a_b[:, :3] + _rotate(_unit(T_a_b[:, 3:]), T_b_c[:, :3])
-    return np.concatenate([p, _qmul(T_a_b[:, 3:], T_b_c[:, 3:])], axis=1)
-
-
-def _inverse(T_a_b: np.ndarray) -> np.ndarray:
-    """``T_b_a (K, 7)``."""
-    conj = T_a_b[:, 3:] * np.array([-1.0, -1.0, -1.0, 1.0])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        q = conj / (conj * conj).sum(axis=1, keepdims=True)
-    return np.concatenate([-_rotate(_unit(conj), T_a_b[:, :3]), q], axis=1)
-
-
-def _interpolate(tk: np.ndarray, pk: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Poses ``(M, 7)`` at the times ``t (M,)`` between readings ``pk (K, 7)`` at increasing ``tk (K,)``:
-    positions linearly, orientations by slerp (the quaternions' norms linearly); NaN outside
-    ``[tk[0], tk[-1]]``."""
-    out = np.full((len(t), 7), np.nan)
-    inside = (t >= tk[0]) & (t <= tk[-1])
-    if len(tk) == 1:
-        out[inside] = pk[0]
-        return out
-    ti = t[inside]
-    i = np.clip(np.searchsorted(tk, ti, side="right") - 1, 0, len(tk) - 2)
-    a = ((ti - tk[i]) / (tk[i + 1] - tk[i]))[:, None]
-    p0, p1 = pk[i], pk[i + 1]
-    n0, n1 = np.linalg.norm(p0[:, 3:], axis=1, keepdims=True), np.linalg.norm(p1[:, 3:], axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        q0, q1 = p0[:, 3:] / n0, p1[:, 3:] / n1
-        dot = (q0 * q1).sum(axis=1, keepdims=True)
-        q1 = np.where(dot < 0, -q1, q1)  # the shorter way round
-        theta = np.arccos(np.clip(np.abs(dot), 0.0, 1.0))
-        s = np.sin(theta)
-        small = s < 1e-9  # (nearly) the same orientation: linear, then normalised
-        w0 = np.where(small, 1 - a, np.sin((1 - a) * theta) / np.where(small, 1.0, s))
-        w1 = np.where(small, a, np.sin(a * theta) / np.where(small, 1.0, s))
-        q = _unit(w0 * q0 + w1 * q1) * ((1 - a) * n0 + a * n1)
-    out[inside] = np.concatenate([(1 - a) * p0[:, :3] + a * p1[:, :3], q], axis=1)
-    return out
-
-
-# ---------------------------------------------------------------------------------------------
 # the messages of one bag
 
 
@@ -357,117 +291,10 @@ def _read_streams(reader, bag: Path, joint_topic: str, pose_topics: Sequence[str
 
 
 # ---------------------------------------------------------------------------------------------
-# the tf tree
-
-
-@dataclass(frozen=True)
-class _Edge:
-    """One tf transform ``T_parent_child`` over time: ``t (K,)`` increasing, ``pose (K, 7)``,
-    ``where (K,)`` message numbers on ``topic``; a static one holds its last reading (``K = 1``)."""
-
-    parent: str
-    t: np.ndarray
-    pose: np.ndarray
-    where: np.ndarray
-    static: bool
-    topic: str
-
-    def at(self, t: np.ndarray) -> np.ndarray:
-        return np.tile(self.pose[-1], (len(t), 1)) if self.static else _interpolate(self.t, self.pose, t)
-
-
-class _TfTree:
-    """The transforms of ``/tf`` and ``/tf_static`` by child frame, and chains between frames."""
-
-    def __init__(self, bag: Path, streams: Mapping[str, _Stream], notes: list[str]):
-        self.bag = bag
-        rows: dict[str, list] = {}
-        for topic, s in streams.items():
-            for t, where, (parent, child, pose) in zip(s.times(f"{bag.name}:{topic}", notes), s.where, s.data):
-                rows.setdefault(child, []).append((t, where, parent, pose, topic))
-        self.edges = {child: self._edge(child, r) for child, r in rows.items()}
-
-    def _edge(self, child: str, rows: list) -> _Edge:
-        parents = sorted({r[2] for r in rows})
-        if len(parents) > 1:
-            raise RecordingError(f"{self.bag}: tf frame {child!r} has more than one parent ({', '.join(parents)}); "
-                                 "a tf tree gives each frame one")
-        static = all(r[4] == "/tf_static" for r in rows)
-        if static:
-            rows = rows[-1:]  # a static transform is timeless: the last one published stands
-        order = np.argsort([r[0] for r in rows], kind="stable")
-        t = np.array([rows[i][0] for i in order])
-        keep = np.append(t[1:] != t[:-1], True)  # one reading per stamp: the last one received
-        sel = order[keep]
-        return _Edge(parents[0], t[keep], np.array([rows[i][3] for i in sel], dtype=float).reshape(-1, 7),
-                     np.array([rows[i][1] for i in sel], dtype=np.int64), static, rows[sel[0]][4])
-
-    def _up(self, frame: str) -> list[str]:
-        """``frame`` and its ancestors up to its tree's root."""
-        path = [frame]
-        while path[-1] in self.edges:
-            parent = self.edges[path[-1]].parent
-            if parent in path:
-                raise RecordingError(f"{self.bag}: the tf tree has a loop through frames {path[path.index(parent):]}")
-            path.append(parent)
-        return path
-
-    def frames(self) -> list[str]:
-        return sorted({*self.edges, *(e.parent for e in self.edges.values())})
-
-    def trees(self) -> str:
-        """The frames, grouped by the tree they belong to, for a message."""
-        roots: dict[str, list[str]] = {}
-        for f in self.frames():
-            roots.setdefault(self._up(f)[-1], []).append(f)
-        return "; ".join(f"[{', '.join(fs)}]" for fs in roots.values()) or "no frames"
-
-    def chain(self, frame: str, base: str, what: str) -> list[tuple[str, bool]]:
-        """The edges from ``base`` to ``frame``, each as ``(child frame, inverted)``, in order:
-        ``T_base_frame`` is their product. ``RecordingError`` when they are not connected."""
-        if base not in self.frames():
-            raise RecordingError(f"{self.bag}: the base frame {base!r} is not in /tf or /tf_static, so {what} "
-                                 f"{frame!r} cannot be chained to it (the tf trees: {self.trees()})")
-        up_frame, up_base = self._up(frame), self._up(base)
-        common = next((f for f in up_frame if f in up_base), None)
-        if common is None:
-            raise RecordingError(f"{self.bag}: {what} {frame!r} is not connected to the base frame {base!r} "
-                                 f"through /tf and /tf_static (the tf trees: {self.trees()})")
-        down = up_frame[:up_frame.index(common)]
-        return [(c, True) for c in up_base[:up_base.index(common)]] + [(c, False) for c in reversed(down)]
-
-    def poses(self, chain: Sequence[tuple[str, bool]], t: np.ndarray) -> np.ndarray:
-        """``T_base_frame (len(t), 7)`` along ``chain`` at the times ``t`` (NaN outside a moving
-        transform's readings)."""
-        out = np.tile([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], (len(t), 1))
-        for child, inverted in chain:
-            T = self.edges[child].at(t)
-            out = _compose(out, _inverse(T) if inverted else T)
-        return out
-
-    def track(self, chain: Sequence[tuple[str, bool]]) -> RawTrack:
-        """The readings of a frame along ``chain``: at every stamp of its moving transforms while
-        all of them have readings around it; once (at the latest stamp) when all are static."""
-        edges = [self.edges[c] for c, _ in chain]
-        moving = [e for e in edges if not e.static]
-        if not moving:
-            last = max(edges, key=lambda e: e.t[-1])
-            return RawTrack(t=last.t[-1:], pose=self.poses(chain, last.t[-1:]), where=last.where[-1:])
-        t = np.concatenate([e.t for e in moving])
-        where = np.concatenate([e.where for e in moving])
-        order = np.argsort(t, kind="stable")
-        t, where = t[order], where[order]
-        first = np.append(True, t[1:] != t[:-1])
-        inside = (t >= max(e.t[0] for e in moving)) & (t <= min(e.t[-1] for e in moving))
-        t, where = t[first & inside], where[first & inside]
-        return RawTrack(t=t, pose=self.poses(chain, t), where=where)
-
-
-# ---------------------------------------------------------------------------------------------
 # read_bag
 
 
-def _pose_track(bag: Path, topic: str, s: _Stream, base: str | None, tree: _TfTree | None, notes: list[str]) \
+def _pose_track(bag: Path, topic: str, s: _Stream, base: str | None, tree: TfTree | None, notes: list[str]) \
         -> RawTrack:
     """A ``PoseStamped`` topic's readings in the base frame."""
     t = s.times(f"{bag.name}:{topic}", notes)
@@ -489,7 +316,7 @@ def _pose_track(bag: Path, topic: str, s: _Stream, base: str | None, tree: _TfTr
                                  "has no /tf or /tf_static to chain them with")
         sel = frames == frame
         what = f"the frame of {topic}" + (" (an empty header.frame_id)" if not frame else "")
-        pose[sel] = _compose(tree.poses(tree.chain(frame, base, what), t[sel]), pose[sel])
+        pose[sel] = compose(tree.poses(tree.chain(frame, base, what), t[sel]), pose[sel])
     return RawTrack(t=t, pose=pose, where=np.asarray(s.where, dtype=np.int64))
 
 
@@ -543,7 +370,8 @@ def read_bag(path: str | Path, joint_names: Sequence[str], joint_topic: str | No
     if never:
         raise RecordingError(f"{bag}:{topic}: no message gives the robot's joint(s) {never} (the names seen: "
                              f"{list(joints.seen)})")
-    tree = _TfTree(bag, {t: streams[t] for t in tf_topics}, notes) if tf_topics else None
+    tree = TfTree(bag, {t: (streams[t].times(f"{bag.name}:{t}", notes), streams[t].where, streams[t].data)
+                        for t in tf_topics}) if tf_topics else None
     tracks = {}
     for f in frames:  # (_check_landmarks: a base frame; tf topics were checked above)
         assert tree is not None and base is not None
