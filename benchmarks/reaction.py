@@ -118,7 +118,6 @@ def main(argv=None) -> int:
     check_set_size(args.scenes, "--scenes")
     check_roadmap_size(args.roadmap_size)
     from lfd.learning.model import TaskModel
-    from lfd.robot.kinematics import KinematicModel
     from sim.evaluate import VARIANTS, ensure_model
     from sim.reach import DumpReach
     from sim.report import PAPER_LATENCY_MS, strict_json
@@ -127,7 +126,6 @@ def main(argv=None) -> int:
     models = args.models or ROOT / "runs" / args.task / "models"
     model_dir = ensure_model(args.task, models, None, VARIANTS[0])
     model = TaskModel.load(model_dir)
-    model.kin = KinematicModel.from_spec(model.robot, dtype=model.dtype)
     scenes = []
     with DumpReach(args.task) as reach:  # the pour's scenes keep the bowl still: give them a move
         drawn = [with_bowl_move(sc, reach) for sc in draw_scenarios(args.task, args.scenes, args.seed, reach)]

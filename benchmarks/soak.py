@@ -58,7 +58,6 @@ def main(argv=None) -> int:
 
     import torch
 
-    from lfd.robot.kinematics import KinematicModel
     from sim import layout as L
     from sim.collision import make_collision_fns
     from sim.model_check import load_checked_model
@@ -69,7 +68,6 @@ def main(argv=None) -> int:
     torch.set_num_threads(1)
     rng = np.random.default_rng(args.seed)
     model, task = load_checked_model(args.model)  # its landmarks and robot are the scenario's
-    model.kin = KinematicModel.from_spec(model.robot, dtype=model.dtype)
     scenario = draw_scenario(task, args.seed)
     lat, search, statuses, edges = [], [], {}, []
     with World(scenario.task, scenario=scenario.placements, n_particles=0) as world:

@@ -51,7 +51,6 @@ def run_one(task: str, scenario: Scenario, variant, model_dir: str, roadmap_size
     import torch
 
     from lfd.learning.model import TaskModel
-    from lfd.robot.kinematics import KinematicModel
     from sim.collision import make_collision_fns
     from sim.execute import ExecSettings, execute_plan
     from sim.world import World
@@ -59,7 +58,6 @@ def run_one(task: str, scenario: Scenario, variant, model_dir: str, roadmap_size
     torch.set_num_threads(1)
     tic = time.perf_counter()
     model = TaskModel.load(model_dir)
-    model.kin = KinematicModel.from_spec(model.robot, dtype=model.dtype)
     with World(task, scenario=scenario.placements) as world:
         fns = make_collision_fns(world, obstacles=variant.obstacles)
         planner = scene_planner(model, fns, task, roadmap_size, scenario.seed)
@@ -105,14 +103,12 @@ def plan_scenario(model_dir: Path, scenario: Scenario, roadmap_size: int | None,
     Returns ``(report, plan_result, model)``.
     """
     from lfd.learning.model import TaskModel
-    from lfd.robot.kinematics import KinematicModel
     from sim import layout as L
     from sim.collision import make_collision_fns
     from sim.execute import ExecSettings, execute_plan
     from sim.world import World
 
     model = TaskModel.load(model_dir)
-    model.kin = KinematicModel.from_spec(model.robot, dtype=model.dtype)
     report = {"scenario": scenario.to_dict(), "latency": str(latency)}
     with World(scenario.task, gui=gui, scenario=scenario.placements) as world:
         fns = make_collision_fns(world, obstacles=True)
