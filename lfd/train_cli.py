@@ -153,6 +153,14 @@ def build_parser(prog: str = PROG) -> ArgumentParser:
                    help="continue from the checkpoint in --out (same options and demonstrations)")
     p.add_argument("--quiet", action="store_true",
                    help="no per-iteration progress lines (the summary lines and warnings stay)")
+    p.add_argument("--validate", default=None, metavar="K|loo",
+                   help="also K-fold cross-validation over whole demonstrations (loo: leave one out): each fold "
+                        "learned with the same options, its held-out NLL per observation beside the training "
+                        "figure, and a warning when it is much worse (lfd.learning.validate; summary.json's "
+                        "'validation'; default: none)")
+    p.add_argument("--validation-demos", type=path_arg, default=None, metavar="DIR",
+                   help="also score a separate demonstration set (same robot, landmarks and dt) with the learned "
+                        "model (summary.json's 'validation'; default: none)")
     return p
 
 
@@ -171,6 +179,11 @@ def parse_args(argv=None, prog: str = PROG):
     check_seed(args.seed)  # was a traceback mid-generation
     check_device(args.device)
     check_task_name(args.task)
+    if args.validate is not None:  # the demonstrations' count is checked once they are loaded
+        v = args.validate.strip().lower()
+        if v != "loo" and not (v.isdigit() and int(v) >= 2):
+            raise UsageError(f"--validate must be a number of folds (at least 2) or 'loo', got {args.validate!r}")
+        args.validate = v if v == "loo" else int(v)
     if args.demos is None and args.task not in BUILT_IN_TASKS:
         raise UsageError(f"--task {args.task}: give --demos DIR with its demonstrations (they are generated only "
                          f"for the built-in tasks {', '.join(BUILT_IN_TASKS)})")
@@ -286,6 +299,44 @@ def _fit_config(args, ds):
     return cfg
 
 
+def _uncertainty_summary(result) -> dict:
+    """``summary.json``'s uncertainty (``lfd.learning.uncertainty``): ``tool_point_se_m`` (3,) in the
+    gripper frame and ``env_weights_se`` per kept landmark (standard errors over the demonstrations;
+    null where they do not determine it), ``landmark_evidence`` per sensed landmark (on how many
+    held-out demonstrations the model with all the weight on it is worse than the learned model, of
+    how many not tied, and the mean difference in Eq. 3 units per demonstration),
+    ``landmarks_about_equal``."""
+    u = result.uncertainty
+    if u is None:
+        return {}
+
+    def finite(x):
+        return float(x) if np.isfinite(x) else None
+
+    return {"tool_point_se_m": None if u.tool_se is None else [finite(x) for x in u.tool_se],
+            "env_weights_se": {n: finite(x) for n, x in u.env_se.items()},
+            "landmark_evidence": {n: {"worse_in": worse, "of": counted, "heldout_gap": gap}
+                                  for n, (worse, counted, gap) in u.evidence.items()},
+            "landmarks_about_equal": list(u.about_equal)}
+
+
+def _uncertainty_line(summary: dict) -> str | None:
+    """The console's line of ``_uncertainty_summary``'s figures (None without them)."""
+    if "tool_point_se_m" not in summary:
+        return None
+    parts = []
+    se = summary["tool_point_se_m"]
+    if se is not None:
+        parts.append("tool point's standard error [" + ", ".join("undetermined" if x is None else f"{x * 100:.2f}"
+                                                                 for x in se) + "] cm (gripper frame)")
+    if summary["env_weights_se"]:
+        parts.append("weights' {" + ", ".join(f"{n}: {'undetermined' if x is None else f'{x:.3f}'}"
+                                             for n, x in summary["env_weights_se"].items()) + "}")
+    if summary["landmark_evidence"]:
+        parts.append(f"landmarks that explain them as well as the model: {summary['landmarks_about_equal']}")
+    return "  over the demonstrations: " + "; ".join(parts) if parts else None
+
+
 def _summary(result, ds, cfg, n_obs: int) -> dict:
     """``summary.json``: the fit's figures, the demonstrations' fingerprint (what an evaluation
     checks a trained model against), and the errors against a hidden ground truth when the
@@ -305,6 +356,7 @@ def _summary(result, ds, cfg, n_obs: int) -> dict:
                "env_weights_before_pruning": result.env_before_pruning,
                "kept_landmarks": list(result.kept_landmarks), "virtual_det": list(result.virtual_det),
                "effective_demos_per_step": [round(x, 2) for x in result.effective_demos],
+               **_uncertainty_summary(result),
                "warnings": list(result.warnings), "timings": result.timings}
     gt = ds.ground_truth  # evaluation only: never passed to the fit
     if gt:
@@ -398,6 +450,74 @@ def _reconcile_checkpoint(resumed, out: Path, cfg, ds, guard) -> None:
             remove_checkpoint(out)
 
 
+def _validation_inputs(args, ds, cfg, kin):
+    """What ``--validate`` and ``--validation-demos`` ask for, checked before the fit (so a bad
+    one is refused at once): ``(folds or None, the validation DemoSet or None)``."""
+    from lfd.learning.demo_checks import check_demoset
+    from lfd.learning.demos import load_demos
+    from lfd.learning.validate import ValidationError, check_validation_set, fold_count
+
+    if args.validate is not None:
+        try:
+            fold_count(args.validate, len(ds.demos))
+        except ValidationError as e:
+            raise UsageError(f"--validate {args.validate}: {e}") from e
+    vset = None
+    if args.validation_demos is not None:
+        vset = load_demos(args.validation_demos, time_steps=2)  # their length for the model: below
+        try:
+            vset, _ = check_demoset(vset, kin)
+            check_validation_set(ds, vset, cfg)
+        except ValidationError as e:
+            raise UsageError(f"--validation-demos {args.validation_demos}: {e}") from e
+    return args.validate, vset
+
+
+def _validate(args, ds, kin, cfg, model, folds, vset) -> dict | None:
+    """``summary.json``'s ``"validation"``: the folds' and the separate set's figures
+    (``lfd.learning.validate.cross_validate``), with a line per fold (with ``--quiet`` too: a
+    fold's fit prints no iterations)."""
+    import time
+
+    from lfd.learning.validate import cross_validate
+
+    if folds is None and vset is None:
+        return None
+    if folds is not None:
+        print(f"validating: {folds} folds of the {len(ds.demos)} demonstrations, each learned as above ...",
+              flush=True)
+
+    def on_fold(r) -> None:
+        c = r.comparison
+        print(f"  fold {r.fold + 1}/{r.folds} (held out {', '.join(r.heldout_names)}): NLL per observation "
+              f"{c.heldout.nll_per_obs:.2f} held out, {c.train.nll_per_obs:.2f} training [{r.seconds:.1f}s]",
+              flush=True)
+
+    t0 = time.perf_counter()
+    v = cross_validate(ds, kin, cfg, folds=folds, validation=vset, model=model, progress=on_fold,
+                       workers=args.workers)
+    return {**v.summary(), "time_s": time.perf_counter() - t0}
+
+
+def _print_validation(block: dict | None, where) -> None:
+    """The console's lines of ``summary.json``'s ``"validation"`` (its warnings on stderr)."""
+    if block is None:
+        return
+    F, margin = block["n_features"], block["margin"]
+    if block["folds"] is not None:
+        print(f"validation ({block['folds']} folds): NLL per observation {block['heldout_nll_per_obs']:.2f} held out, "
+              f"{block['train_nll_per_obs']:.2f} training (Eq. 3 units; warned above {margin:g} more, F = {F})",
+              flush=True)
+        if block["warning"]:
+            print(f"warning: validation: {block['warning']}", file=sys.stderr)
+    sep = block.get("validation_set")
+    if sep is not None:
+        print(f"validation set {where} ({sep['n_demos']} demonstrations): NLL per observation "
+              f"{sep['nll_per_obs']:.2f}, {sep['train_nll_per_obs']:.2f} on the training demonstrations", flush=True)
+        if sep["warning"]:
+            print(f"warning: validation set: {sep['warning']}", file=sys.stderr)
+
+
 def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
     from lfd.learning.checkpoint import atomic_write_text, save_checkpoint
     from lfd.learning.learn import fit, restart_workers
@@ -409,6 +529,7 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
     progress["restarts"] = cfg.restarts
     _reconcile_checkpoint(resumed, out, cfg, ds, guard)
     kin = KinematicModel.from_spec(ds.robot)
+    folds, vset = _validation_inputs(args, ds, cfg, kin)
     n_obs = ds.subsample(cfg.subsample).n_observations  # what the fit learns from
     every = f" (1 in {cfg.subsample} of {ds.n_observations})" if cfg.subsample > 1 else ""
     print(f"{len(ds.demos)} demonstrations, {n_obs} observations{every} at dt {ds.dt * cfg.subsample:g} s, landmarks "
@@ -435,6 +556,7 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
         log.close()
     m = result.model
     summary = _summary(result, ds, cfg, n_obs)
+    summary["validation"] = _validate(args, ds, kin, cfg, m, folds, vset)
     with guard.critical():  # the model's files, each atomic, and never split by a signal
         m.save(out)
         atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
@@ -448,6 +570,9 @@ def _train(args, out: Path, guard, progress: dict, prog: str = PROG) -> int:
               "task point", flush=True)
     for name, dist in summary.get("reference_point_distances_m", {}).items():
         print(f"  the tool point is {dist * 100:.1f} cm from the demonstrations' {name}", flush=True)
+    if _uncertainty_line(summary):
+        print(_uncertainty_line(summary), flush=True)
+    _print_validation(summary["validation"], args.validation_demos)
     for w in result.warnings[shown[0]:]:
         print(f"warning: {w}", file=sys.stderr)
     return 0

@@ -490,13 +490,13 @@ def test_a_virtual_landmark_between_two_landmarks_is_learned_and_kept(synth, kin
 
 def test_pruning_is_repeated_until_no_kept_landmark_weighs_under_the_threshold(kin):
     """A refit after pruning moves the survivors' weights: here (a synthetic set, threshold 0.18%)
-    lm2 weighs 0.22% before pruning, survives it, and falls to 0.13% in the refit. The paper's rule
+    lm4 weighs 0.181% before pruning, survives it, and falls to 0.165% in the refit. The paper's rule
     (the landmarks needed at execution are those of at least the threshold) holds for the final
-    model: lm2 is pruned in a second refit, and every kept landmark weighs at least the threshold."""
+    model: lm4 is pruned in a second refit, and every kept landmark weighs at least the threshold."""
     ds, _ = make_synthetic(kin, seed=3, std_scale=0.5, time_steps=T_STEPS, task=POWDER)
     thr = 0.0018
     res = fit(ds, kin, FitConfig(time_steps=T_STEPS, restarts=2, seed=0, prune_threshold=thr))
-    assert res.env_before_pruning["lm2"] >= thr and "lm2" not in res.kept_landmarks
+    assert res.env_before_pruning["lm4"] >= thr and "lm4" not in res.kept_landmarks
     assert len(res.loss_history) >= 2 + 2  # two restarts, then at least two refits
     assert "bowl" in res.kept_landmarks and np.abs(res.model.env.numpy()).min() >= thr
 

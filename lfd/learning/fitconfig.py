@@ -15,12 +15,14 @@ import torch
 from lfd.errors import UserInputError
 from lfd.learning.model import COVARIANCES, FEATURE_SETS, TaskModel
 from lfd.learning.tasks import check_stride, check_whole, is_real
+from lfd.learning.uncertainty import Uncertainty
 
-__all__ = ["DTYPES", "ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitError", "FitResult",
-           "SolverSettings"]
+__all__ = ["DTYPES", "ENV_MODES", "ENV_WEIGHTS", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitError",
+           "FitResult", "SolverSettings"]
 
 TOOL_MODES = ("learn", "gripper", "tip")
 ENV_MODES = ("learn", "bowl")
+ENV_WEIGHTS = ("simplex", "affine")
 M_STEPS = ("profile", "joint")
 INITS = ("reference", "random", "linear")
 DTYPES = {"float64": torch.float64, "float32": torch.float32}
@@ -109,6 +111,11 @@ class FitConfig:
 
     tool : 'learn' | 'gripper' (fixed at the end-effector origin) | 'tip' (task.manual_tool_point).
     env : 'learn' | 'bowl' (one-hot on task.reference_landmark).
+    env_weights : the environment weights a learned landmark may take. 'simplex' (default; Sec. IV-A:
+        sum 1 with the L1 norm constrained, i.e. each in [0, 1]): the virtual landmark lies among the
+        sensed ones. 'affine': sum 1, any sign, so it may also lie beyond them (the weights'
+        parametrisation: ``lfd.learning.em.EMFitter.weights``; the measured reason to keep it:
+        docs/DESIGN.md, *Environment weights and what the demonstrations leave uncertain*).
     offsets : the permitted time-step transitions ``t -> t + k`` (the paper fixes a set and
         estimates their probabilities; it does not name the set). Default ``(0, 1)``: every
         demonstration visits every step, so no step is left to the one or two demonstrations
@@ -148,6 +155,10 @@ class FitConfig:
         size): beyond it a steep penalty holds it, so that a component the demonstrations cannot
         determine (the gripper never turned about that axis, ``lfd.learning.identify``) stays on
         the tool instead of drifting off to metres; inside it the objective is the paper's.
+    tool_size : metres from the gripper's origin within which a tool point is taken to lie on the
+        tool (default 0.25: a hand tool held in the gripper); beyond it ``fit`` warns, saying whether
+        the demonstrations place the point there or cannot place it (``lfd.learning.uncertainty``).
+        It changes no learned value; at most ``tool_radius``.
     trans_floor : smallest probability of a permitted transition.
     restarts : EM runs from different starts (``init``); the best by loss is kept. Each ends in a
         local optimum of hard EM, and their losses spread widely (powder demonstrations aimed
@@ -189,6 +200,7 @@ class FitConfig:
     restarts: int = 12
     tool: str = "learn"
     env: str = "learn"
+    env_weights: str = "simplex"
     covariance: str = "block"
     prune_threshold: float = 0.05
     seed: int = 0
@@ -206,12 +218,14 @@ class FitConfig:
     band: int | None = 1
     max_dwell: float | None = 2.0
     tool_radius: float = 0.5
+    tool_size: float = 0.25
     solver: SolverSettings = field(default_factory=SolverSettings)
     zeta_prior: Callable | None = field(default=None, compare=False)
     eta_prior: Callable | None = field(default=None, compare=False)
 
     def __post_init__(self):
-        for name, allowed in (("tool", TOOL_MODES), ("env", ENV_MODES), ("covariance", COVARIANCES),
+        for name, allowed in (("tool", TOOL_MODES), ("env", ENV_MODES), ("env_weights", ENV_WEIGHTS),
+                              ("covariance", COVARIANCES),
                               ("init", INITS), ("dtype", tuple(DTYPES)), ("features", FEATURE_SETS)):
             value = getattr(self, name)
             if value not in allowed:
@@ -224,7 +238,7 @@ class FitConfig:
         object.__setattr__(self, "time_steps", check_whole(self.time_steps, "FitConfig.time_steps", 2))
         object.__setattr__(self, "restarts", check_whole(self.restarts, "FitConfig.restarts", 1))
         _check_numbers(self, ("prune_threshold", "logdet_scale", "floor_joint", "floor_task", "floor_attitude",
-                              "floor_weight", "trans_floor", "max_dwell", "tool_radius"))
+                              "floor_weight", "trans_floor", "max_dwell", "tool_radius", "tool_size"))
         if not isinstance(self.solver, SolverSettings):
             raise TypeError(f"FitConfig.solver must be a SolverSettings, got {type(self.solver).__name__}")
         if self.band is not None:  # wider than the model would constrain nothing: that is None
@@ -266,6 +280,9 @@ class FitConfig:
                              f"(the mean observations per step), got {self.floor_weight}")
         if not (math.isfinite(self.tool_radius) and self.tool_radius > 0):
             raise ValueError(f"FitConfig.tool_radius must be a positive distance in metres, got {self.tool_radius}")
+        if not (math.isfinite(self.tool_size) and 0 < self.tool_size <= self.tool_radius):
+            raise ValueError(f"FitConfig.tool_size must be a positive distance in metres, at most tool_radius "
+                             f"({self.tool_radius:g}), got {self.tool_size}")
         if not (math.isfinite(self.logdet_scale) and self.logdet_scale > 0):
             raise ValueError(f"FitConfig.logdet_scale must be finite and positive, got {self.logdet_scale}")
         if not 0 <= self.prune_threshold < 1:
@@ -291,7 +308,16 @@ class FitResult:
     effective_demos: tuple[float, ...]  # per step, in the final alignment (lfd.learning.dtw.effective_demos);
     # a warning when the median is under M / 3 (with M >= 4 demonstrations)
     warnings: tuple[str, ...]
-    timings: dict  # s: fk_s, restarts_s, refit_s and session_s of this call; total_s with the resumed sessions'
+    timings: dict  # s: fk_s, restarts_s, refit_s, uncertainty_s and session_s of this call; total_s with the
+    # resumed sessions'
     resumed_restarts: int = 0  # restarts taken from a checkpoint instead of run
+    uncertainty: Uncertainty | None = None  # the tool point's and weights' standard errors, the landmarks that
+    # explain the data about equally (lfd.learning.uncertainty)
+
+    @property
+    def tool_se(self) -> np.ndarray | None:
+        """``(3,)`` m: the learned tool point's standard error per axis of the gripper frame (``inf``
+        along an axis the demonstrations do not determine); None when it was not learned."""
+        return None if self.uncertainty is None else self.uncertainty.tool_se
 
 

@@ -21,7 +21,9 @@
 * **A tool point on the bound.** The learned tool point ends on ``FitConfig.tool_radius``: the
   bound, not the data, placed it.
 
-``identifiability_notes`` gives the warnings the fit reports (``FitResult.warnings``).
+``identifiability_notes`` gives the warnings the fit reports (``FitResult.warnings``). What the
+data determine only loosely, measured after the fit (standard errors, landmarks that explain the
+demonstrations about equally, a tool point beyond the tool's size): ``lfd.learning.uncertainty``.
 """
 
 from __future__ import annotations

@@ -11,9 +11,15 @@ projection: the same joint minimum, in 3 + Z - 1 unknowns instead of ~1,600) and
 in closed form. ``SolverSettings(m_step='joint')`` (forced when an ``eta_prior`` is given) continues with LBFGS
 over zeta and eta together from there.
 
-env weights are ``w = w_ref + B u`` with ``B (Z, Z-1)`` an orthonormal basis of ``{sum = 0}``
-(the tangent space of the constraint, Sec. IV-A); weights may be negative. After each M-step
-``w`` is re-projected to sum exactly to 1 (to rounding).
+env weights lie on the simplex (``FitConfig.env_weights='simplex'``, Sec. IV-A: sum 1 with the L1
+norm constrained): LBFGS works in the ``Z - 1`` coordinates ``u`` of the sum-to-one plane, ``x =
+w_ref + B u`` with ``B (Z, Z-1)`` an orthonormal basis of ``{sum = 0}``, and the weights are the
+Euclidean projection of ``x`` onto the simplex (``lfd.learning.em.EMFitter.weights``), so no weight
+can turn negative; 'affine' weights are ``x`` itself (the tangent space of the sum-to-one
+constraint alone, any sign). After each M-step ``w`` is made to sum exactly to 1 (to rounding).
+
+After the refit, ``lfd.learning.uncertainty`` estimates what the demonstrations leave uncertain
+(``FitResult.uncertainty``) and warns from it.
 
 This module holds the restarts and pruning; the settings and the result are in
 ``lfd.learning.fitconfig``, the EM steps in ``lfd.learning.em``.
@@ -59,6 +65,7 @@ from lfd.learning.em import EM_FAILURES, EMFitter, FitData
 from lfd.learning.fitconfig import DTYPES, ENV_MODES, INITS, M_STEPS, TOOL_MODES, FitConfig, FitError, FitResult
 from lfd.learning.identify import check_learnable, identifiability_notes
 from lfd.learning.model import TaskModel
+from lfd.learning.uncertainty import estimate_uncertainty, uncertainty_notes
 
 __all__ = ["ENV_MODES", "INITS", "M_STEPS", "TOOL_MODES", "FitConfig", "FitError", "FitResult", "fit",
            "initial_guesses", "restart_workers"]
@@ -106,7 +113,7 @@ def initial_guesses(seed: int, lengths, time_steps: int, n_landmarks: int, cfg: 
 
 
 def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart=None,
-        resume: FitProgress | None = None, workers: int | None = None) -> FitResult:
+        resume: FitProgress | None = None, workers: int | None = None, uncertainty: bool = True) -> FitResult:
     """Learn a ``TaskModel`` from a ``DemoSet`` (Sec. IV).
 
     Parameters
@@ -132,7 +139,13 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
         thread (never two at once); ``config.zeta_prior`` and ``eta_prior`` are called from
         several at once, so they must not keep state between calls. An exception in a restart
         (other than a diverged one, which is dropped) is raised once the earlier restarts have
-        finished; the restarts still running then stop at their next EM iteration.
+        finished; the restarts still running then stop at their next EM iteration. The
+        uncertainty's refits run ``workers`` at once too.
+    uncertainty : estimate what the demonstrations leave uncertain (``FitResult.uncertainty``,
+        ``lfd.learning.uncertainty``: a jackknife over the demonstrations and a model per sensed
+        landmark; measured 3% of the powder's learning time and 10% of the pour's), and warn from
+        it; False: None, and no such warnings (a fit whose standard errors nobody reads, e.g. a
+        validation fold).
 
     Raises
     ------
@@ -164,7 +177,7 @@ def fit(demoset, kin, config: FitConfig | None = None, callback=None, on_restart
     if cfg.solver.num_threads is not None:
         torch.set_num_threads(int(cfg.solver.num_threads))
     try:
-        return _fit(demoset, kin, cfg, callback, dtype, device, on_restart, resume, workers)
+        return _fit(demoset, kin, cfg, callback, dtype, device, on_restart, resume, workers, uncertainty)
     finally:
         torch.set_num_threads(threads)
 
@@ -408,7 +421,8 @@ def _prune_and_refit(data: FitData, cfg: FitConfig, names, fixed_env, log: _Rest
     return state, kept, final_loss, fitter
 
 
-def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=None, workers=None) -> FitResult:
+def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=None, workers=None,
+         uncertainty: bool = True) -> FitResult:
     t0 = time.perf_counter()
     # checkpoints name the demonstrations as given; the fit sees them subsampled
     fingerprint = demos_fingerprint(demoset) if on_restart is not None else ""
@@ -429,6 +443,9 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
 
     state, kept, final_loss, fitter = _prune_and_refit(data, cfg, names, fixed[1], log, callback, dtype, device)
     tool, w, mu, sigma_inv, log_trans, align = state
+    t_refit = time.perf_counter() - t0 - t_fk - t_restarts
+    unc = (estimate_uncertainty(data, cfg, fitter, tool, w, align, names, kept, dtype, device,
+                                restart_workers(workers, data.M)) if uncertainty else None)
     mu, sigma_inv = fitter.final_eta(tool, w, mu, sigma_inv, align)  # the model's Gaussians
     finite = all(bool(torch.isfinite(x).all()) for x in (tool, w, mu, sigma_inv))
     if not (math.isfinite(final_loss) and finite and bool((log_trans < math.inf).all())):  # -inf: forbidden
@@ -441,7 +458,9 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
             0, data.lm_demo, det_rows, reduce="amin").cpu().numpy()  # (M,) the least per demonstration
         lo, hi = float(det_rows.min()), float(det_rows.max())
         R_virt_ee = (A[data.lm_row] @ data.T_world_ee[:, :3, :3]).cpu().numpy()  # (N, 3, 3)
-    for text in identifiability_notes(demoset, R_virt_ee, cfg, tool.detach().cpu().numpy()):
+    weights = {names[k]: float(x) for k, x in zip(kept, w.cpu().numpy())}
+    for text in (identifiability_notes(demoset, R_virt_ee, cfg, tool.detach().cpu().numpy())
+                 + (uncertainty_notes(unc, tool.detach().cpu().numpy(), weights, cfg) if unc is not None else [])):
         if text not in log.notes:  # a resumed checkpoint's notes may hold it already
             log.note(text)
     if lo < 0.5 or hi > 2.0:
@@ -456,7 +475,8 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
     model = TaskModel(tool, w, mu, sigma_inv, log_trans, kept_names, demoset.robot, task,
                       all_landmark_names=names, offsets=cfg.offsets, covariance=cfg.covariance,
                       logdet_scale=cfg.logdet_scale, feature_set=cfg.features,
-                      options={"tool": cfg.tool, "env": cfg.env, "floor_joint": cfg.floor_joint,
+                      options={"tool": cfg.tool, "env": cfg.env, "env_weights": cfg.env_weights,
+                               "floor_joint": cfg.floor_joint,
                                "floor_task": cfg.floor_task, "floor_attitude": cfg.floor_attitude,
                                "floor_weight": fitter.nu,
                                "volume_prior": cfg.volume_prior, "trans_floor": cfg.trans_floor,
@@ -467,7 +487,7 @@ def _fit(demoset, kin, cfg, callback, dtype, device, on_restart=None, resume=Non
                      kept_landmarks=kept_names, env_before_pruning=env_before, alignments=tuple(align),
                      virtual_det=tuple(float(x) for x in det), effective_demos=tuple(float(x) for x in eff),
                      warnings=tuple(log.notes),
-                     timings={"fk_s": t_fk, "restarts_s": t_restarts,
-                              "refit_s": total - t_fk - t_restarts, "session_s": total,
+                     timings={"fk_s": t_fk, "restarts_s": t_restarts, "refit_s": t_refit,
+                              "uncertainty_s": unc.time_s if unc is not None else 0.0, "session_s": total,
                               "total_s": total + (resume.elapsed_s if resume is not None else 0.0)},
-                     resumed_restarts=log.first)
+                     resumed_restarts=log.first, uncertainty=unc)

@@ -432,7 +432,8 @@ class TaskModel:
     def load(cls, model_dir: str | Path, dtype: torch.dtype = torch.float64, device="cpu",
              kin=None) -> TaskModel:
         """Rebuild a model written by ``save``, ready to plan: with ``kin``, or the kinematics of its
-        robot built from its URDF in ``dtype`` on ``device``.
+        robot, built from its URDF in the model's dtype and device when first needed (``kin``), so
+        that a model can be loaded and checked (its robot, its landmarks) where that URDF is not.
 
         Raises
         ------
@@ -471,9 +472,6 @@ class TaskModel:
                        options=cfg.get("options"), feature_set=cfg.get("feature_set", "paper"))
         except (KeyError, ValueError, TypeError) as e:
             raise ModelFormatError(f"{model_dir}: inconsistent task model ({e})") from e
-        if kin is None:  # ready to plan: the robot's kinematics attached (a URDF not found is named here)
-            from lfd.robot.kinematics import KinematicModel
-            kin = KinematicModel.from_spec(model.robot, dtype=dtype, device=device)
         model.kin = kin  # the caller's, checked against the model's robot (not a fault of the files)
         said = {"time_steps": model.time_steps, "n_features": model.n_features}
         wrong = {k: (cfg[k], v) for k, v in said.items() if k in cfg and cfg[k] != v}

@@ -11,7 +11,7 @@ robot's (world) frame instead, like the start above the source container.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -20,7 +20,7 @@ from lfd.learning.demoset import Demonstration, DemoSet
 from lfd.learning.tasks import is_real
 from lfd.robot.robots import BAXTER_LEFT, PANDA, RobotSpec
 
-__all__ = ["SyntheticTruth", "make_synthetic", "random_rotation"]
+__all__ = ["SyntheticTruth", "as_handover", "beyond_two_landmarks", "make_synthetic", "random_rotation"]
 
 Q_START = np.array([0.3, -0.6, -0.3, 1.4, 0.3, 0.8, 0.0])
 Q_END = np.array([-0.1, -0.2, 0.2, 1.2, -0.4, 0.6, 0.9])
@@ -161,3 +161,40 @@ def make_synthetic(kin, n_demos=11, time_steps=8, samples_per_step=(6, 11), Z=5,
                  robot=robot, task=task)
     return ds, SyntheticTruth(tool=tool, true_landmark=true_landmark, means=means, stds=stds,
                               alignments=tuple(aligns), fixed_steps=fixed_steps)
+
+
+def as_handover(ds: DemoSet, rng: np.random.Generator, hand_sd: float = 0.03, torso_sd: float = 0.01) -> DemoSet:
+    """A set of ``make_synthetic(landmark_motion=...)`` (tracked landmarks, the true one first) as a
+    handover whose hand and body the data can hardly tell apart: the true landmark, renamed ``hand``,
+    sensed ``hand_sd`` m per axis away from where the task happens (one offset per demonstration: the
+    person holds out the hand a little differently each time), and a ``torso`` landmark appended that
+    moves rigidly with that hand, 30 cm beside and 10 cm below it, plus its own per-demonstration
+    offset of ``torso_sd`` m per axis. ``hand_sd=0`` keeps the hand exact: then the hand is the
+    better landmark on every demonstration."""
+    demos = []
+    for d in ds.demos:
+        lm = np.array(d.landmarks)  # (S, Z, 4, 4)
+        if lm.ndim != 4:
+            raise ValueError("as_handover needs tracked landmarks: make_synthetic(landmark_motion=...)")
+        lm[:, 0, :3, 3] += rng.normal(0, hand_sd, 3)
+        torso = lm[:, 0].copy()
+        torso[:, :3, 3] += np.array([0.3, 0.0, -0.1]) + rng.normal(0, torso_sd, 3)
+        demos.append(replace(d, landmarks=np.concatenate([lm, torso[:, None]], axis=1)))
+    return replace(ds, demos=tuple(demos), landmark_names=("hand", *ds.landmark_names[1:], "torso"))
+
+
+def beyond_two_landmarks(ds: DemoSet, rng: np.random.Generator, spread: float = 0.2) -> DemoSet:
+    """A set of ``make_synthetic`` (landmarks standing still, the true one first) whose true landmark
+    is replaced by two, ``a`` (first) and ``b`` (last), placed so that it is ``1.5 a - 0.5 b``: a point
+    beyond ``a`` on the line from ``b`` (a horizontal offset of up to ``spread`` m per axis from the
+    true place to ``a``, three times that to ``b``, drawn per demonstration). Sum-to-one weights
+    (1.5, -0.5) express it; weights on the simplex cannot."""
+    demos = []
+    for d in ds.demos:
+        lm = np.array(d.landmarks)  # (Z, 4, 4)
+        off = np.r_[rng.uniform(-spread, spread, 2), 0.0]
+        a, b = lm[0].copy(), lm[0].copy()
+        a[:3, 3] += off
+        b[:3, 3] += 3 * off  # 1.5 (L + off) - 0.5 (L + 3 off) = L
+        demos.append(replace(d, landmarks=np.concatenate([a[None], lm[1:], b[None]])))
+    return replace(ds, demos=tuple(demos), landmark_names=("a", *ds.landmark_names[1:], "b"), task=None)
